@@ -1,0 +1,20 @@
+#pragma once
+// `markcell bench loop`: the control lane's wake-up latency at 1 kHz next to cyclictest's
+// at the same period and priority, measured in one run on the same machine.
+#include <string>
+
+#include "markcell/host/config.hpp"
+
+namespace markcell::host {
+
+struct LoopBenchOptions {
+  double seconds = 10.0;
+  std::string lane = "control";
+  std::string json_path;        // empty: no file
+  std::string cyclictest = "cyclictest";
+};
+
+// Returns the process exit code; prints the comparison on stdout.
+int bench_loop(const CellConfig& config, const LoopBenchOptions& options);
+
+}  // namespace markcell::host

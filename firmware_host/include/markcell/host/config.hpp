@@ -1,0 +1,143 @@
+#pragma once
+// The cell configuration: one YAML file per cell (config/cell.example.yaml documents
+// every key). Loading validates everything before anything starts and reports every
+// problem, each with file, line, column, key path and what was expected.
+#include <array>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "markcell/common/time.hpp"
+#include "markcell/control/executive.hpp"
+
+namespace markcell::host {
+
+struct ConfigError {
+  std::string file;
+  int line = 0;    // 1-based; 0 when the position is unknown
+  int column = 0;  // 1-based
+  std::string path;  // key path, e.g. executive.tasks.plc_io.budget_us
+  std::string message;
+  std::string to_string() const;  // FILE:LINE:COL: PATH: MESSAGE
+};
+
+class ConfigInvalid : public std::runtime_error {
+ public:
+  explicit ConfigInvalid(std::vector<ConfigError> errors);
+  const std::vector<ConfigError>& errors() const { return errors_; }
+
+ private:
+  std::vector<ConfigError> errors_;
+};
+
+// The PLC and cell I/O lines, by role. The order is the order of the config section.
+enum class LineRole : std::uint8_t {
+  kSprayValve, kCameraTrigger,                              // outputs to the cell
+  kPlcPanelPresent, kPlcCycleEnable, kPlcEstop,             // inputs from the PLC
+  kPlcReady, kPlcBusy, kPlcDone, kPlcFault,                 // outputs to the PLC
+};
+inline constexpr std::size_t kLineRoleCount = 9;
+std::string_view to_string(LineRole role);
+bool is_output(LineRole role);
+
+struct GpioLineConfig {
+  std::string line;        // line name as the kernel knows it (gpioinfo), or a number
+  bool active_low = false;
+};
+
+struct GpioConfig {
+  bool simulated = true;
+  std::string chip;        // chip name (gpiochip0), label, or path under /dev
+  std::array<GpioLineConfig, kLineRoleCount> lines;
+};
+
+enum class ArmTransport : std::uint8_t { kSimulated, kCan, kSerial };
+std::string_view to_string(ArmTransport t);
+
+struct CanConfig {
+  std::string interface = "can0";
+  int node_id = 2;               // the arm's CANopen node id
+  int controller_node_id = 1;    // ours
+  Nanos heartbeat_period = millis(50);
+  Nanos heartbeat_timeout = millis(150);
+  bool fd = false;
+};
+
+struct SerialConfig {
+  std::string device = "/dev/ttyS1";
+  int baud = 115200;
+  Nanos ack_timeout = millis(20);
+  int retries = 3;
+};
+
+struct ArmConfig {
+  ArmTransport transport = ArmTransport::kSimulated;
+  CanConfig can;
+  SerialConfig serial;
+};
+
+enum class CameraSource : std::uint8_t { kSimulated, kAravis, kRecording };
+enum class CameraTrigger : std::uint8_t { kSoftware, kHardware };
+std::string_view to_string(CameraSource s);
+std::string_view to_string(CameraTrigger t);
+
+struct CameraConfig {
+  CameraSource source = CameraSource::kSimulated;
+  std::string left_id;
+  std::string right_id;
+  int width = 640;
+  int height = 480;
+  double fps = 30.0;
+  double exposure_us = 4000.0;
+  double gain_db = 0.0;
+  CameraTrigger trigger = CameraTrigger::kHardware;
+};
+
+struct WatchdogConfig {
+  bool systemd = true;
+  Nanos systemd_interval = millis(100);  // when systemd gives no WATCHDOG_USEC
+  bool device = false;
+  std::string device_path = "/dev/watchdog";
+  int device_timeout_s = 10;
+};
+
+enum class ArmSafeAction : std::uint8_t { kHold, kHome };
+std::string_view to_string(ArmSafeAction a);
+
+struct SafeStopConfig {
+  ArmSafeAction arm = ArmSafeAction::kHold;
+  bool plc_fault_line = true;  // raise the PLC fault output on every safe stop
+};
+
+struct PanelTypeConfig {
+  std::string name;
+  int macro_features = 10;
+};
+
+struct CalibrationPaths {
+  std::string stereo;  // absolute, resolved against the config file's folder
+  std::string base;
+};
+
+struct CellConfig {
+  std::string file;     // the YAML file it came from
+  std::string name;
+  control::ExecutiveSpec executive;
+  WatchdogConfig watchdog;
+  SafeStopConfig safe_stop;
+  GpioConfig gpio;
+  ArmConfig arm;
+  CameraConfig cameras;
+  CalibrationPaths calibration;
+  std::vector<PanelTypeConfig> panel_types;
+};
+
+// Validates and loads; throws ConfigInvalid with every error found. `known_tasks`: the
+// tasks this build of markcell provides (a configured task must be one of them).
+CellConfig load_config(const std::string& path, const std::vector<std::string>& known_tasks);
+// Same checks, returning the errors instead of throwing (empty: valid).
+std::vector<ConfigError> check_config(const std::string& path, const std::vector<std::string>& known_tasks);
+
+}  // namespace markcell::host

@@ -1,0 +1,561 @@
+#include "markcell/host/config.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <optional>
+#include <sstream>
+
+#include "markcell/vision/calibration_io.hpp"
+
+namespace markcell::host {
+
+std::string ConfigError::to_string() const {
+  std::ostringstream os;
+  os << file;
+  if (line > 0) os << ":" << line << ":" << column;
+  os << ": " << (path.empty() ? "(document)" : path) << ": " << message;
+  return os.str();
+}
+
+namespace {
+std::string join_errors(const std::vector<ConfigError>& errors) {
+  std::string s = std::to_string(errors.size()) + " configuration error(s):";
+  for (const auto& e : errors) s += "\n  " + e.to_string();
+  return s;
+}
+}  // namespace
+
+ConfigInvalid::ConfigInvalid(std::vector<ConfigError> errors)
+    : std::runtime_error(join_errors(errors)), errors_(std::move(errors)) {}
+
+std::string_view to_string(LineRole role) {
+  static constexpr std::array<std::string_view, kLineRoleCount> kNames = {
+      "spray_valve", "camera_trigger", "plc_panel_present", "plc_cycle_enable", "plc_estop",
+      "plc_ready",   "plc_busy",       "plc_done",          "plc_fault"};
+  return kNames[static_cast<std::size_t>(role)];
+}
+bool is_output(LineRole role) {
+  return role != LineRole::kPlcPanelPresent && role != LineRole::kPlcCycleEnable && role != LineRole::kPlcEstop;
+}
+std::string_view to_string(ArmTransport t) {
+  return t == ArmTransport::kCan ? "can" : t == ArmTransport::kSerial ? "serial" : "simulated";
+}
+std::string_view to_string(CameraSource s) {
+  return s == CameraSource::kAravis ? "aravis" : s == CameraSource::kRecording ? "recording" : "simulated";
+}
+std::string_view to_string(CameraTrigger t) { return t == CameraTrigger::kHardware ? "hardware" : "software"; }
+std::string_view to_string(ArmSafeAction a) { return a == ArmSafeAction::kHome ? "home" : "hold"; }
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string node_kind(const YAML::Node& n) {
+  switch (n.Type()) {
+    case YAML::NodeType::Map: return "a map";
+    case YAML::NodeType::Sequence: return "a sequence";
+    case YAML::NodeType::Null: return "nothing (null)";
+    case YAML::NodeType::Scalar: return "\"" + n.Scalar() + "\"";
+    default: return "nothing";
+  }
+}
+
+std::string join(const std::vector<std::string>& items) {
+  std::string s;
+  for (const auto& i : items) s += (s.empty() ? "" : ", ") + i;
+  return s;
+}
+
+// Walks the document, collecting every error with its position. Each `map()` call
+// declares the keys a map may have; anything else is reported as unknown.
+class Reader {
+ public:
+  Reader(std::string file, std::vector<ConfigError>& errors) : file_(std::move(file)), errors_(errors) {}
+
+  void error(const YAML::Node& at, const std::string& path, const std::string& message) {
+    ConfigError e;
+    e.file = file_;
+    const YAML::Mark mark = at.IsDefined() ? at.Mark() : YAML::Mark::null_mark();
+    if (mark.line >= 0) {
+      e.line = mark.line + 1;
+      e.column = mark.column + 1;
+    }
+    e.path = path;
+    e.message = message;
+    errors_.push_back(std::move(e));
+  }
+  void error_at(const YAML::Mark& mark, const std::string& path, const std::string& message) {
+    errors_.push_back(ConfigError{file_, mark.line + 1, mark.column + 1, path, message});
+  }
+
+  // A map with exactly these keys allowed. Returns false (after reporting) when the node
+  // is not a map.
+  bool map(const YAML::Node& node, const std::string& path, const std::vector<std::string>& allowed) {
+    if (!node.IsMap()) {
+      error(node, path, "expected a map, got " + node_kind(node));
+      return false;
+    }
+    std::vector<std::string> seen;
+    for (const auto& kv : node) {
+      const std::string key = kv.first.Scalar();
+      const std::string key_path = path.empty() ? key : path + "." + key;
+      if (std::find(seen.begin(), seen.end(), key) != seen.end()) {
+        error_at(kv.first.Mark(), key_path, "duplicate key '" + key + "'");
+      }
+      seen.push_back(key);
+      if (std::find(allowed.begin(), allowed.end(), key) == allowed.end())
+        error_at(kv.first.Mark(), key_path, "unknown key '" + key + "' (expected one of: " + join(allowed) + ")");
+    }
+    return true;
+  }
+
+  // A map whose keys are names the caller checks (lanes, tasks, panel types).
+  bool named_map(const YAML::Node& node, const std::string& path) {
+    if (!node.IsMap()) {
+      error(node, path, "expected a map of names, got " + node_kind(node));
+      return false;
+    }
+    if (node.size() == 0) {
+      error(node, path, "expected at least one entry");
+      return false;
+    }
+    return true;
+  }
+
+  // Returns the child or, when required and missing, reports it (at the parent).
+  std::optional<YAML::Node> child(const YAML::Node& parent, const std::string& path, const std::string& key,
+                                  bool required) {
+    if (!parent.IsMap()) return std::nullopt;
+    const YAML::Node n = parent[key];
+    if (!n.IsDefined()) {
+      if (required) error(parent, join_path(path, key), "missing required key '" + key + "'");
+      return std::nullopt;
+    }
+    return n;
+  }
+
+  static std::string join_path(const std::string& path, const std::string& key) {
+    return path.empty() ? key : path + "." + key;
+  }
+
+  template <typename T>
+  void integer(const YAML::Node& parent, const std::string& path, const std::string& key, T& out, long long lo,
+               long long hi, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    long long v = 0;
+    const std::string range = "[" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+    if (!n->IsScalar() || !YAML::convert<long long>::decode(*n, v)) {
+      error(*n, p, "expected an integer in " + range + ", got " + node_kind(*n));
+      return;
+    }
+    if (v < lo || v > hi) {
+      error(*n, p, "expected an integer in " + range + ", got " + std::to_string(v));
+      return;
+    }
+    out = static_cast<T>(v);
+  }
+
+  void number(const YAML::Node& parent, const std::string& path, const std::string& key, double& out, double lo,
+              double hi, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    double v = 0;
+    std::ostringstream range;
+    range << "[" << lo << ", " << hi << "]";
+    if (!n->IsScalar() || !YAML::convert<double>::decode(*n, v) || !std::isfinite(v)) {
+      error(*n, p, "expected a number in " + range.str() + ", got " + node_kind(*n));
+      return;
+    }
+    if (v < lo || v > hi) {
+      std::ostringstream os;
+      os << "expected a number in " << range.str() << ", got " << v;
+      error(*n, p, os.str());
+      return;
+    }
+    out = v;
+  }
+
+  void boolean(const YAML::Node& parent, const std::string& path, const std::string& key, bool& out,
+               bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    bool v = false;
+    if (!n->IsScalar() || !YAML::convert<bool>::decode(*n, v)) {
+      error(*n, join_path(path, key), "expected true or false, got " + node_kind(*n));
+      return;
+    }
+    out = v;
+  }
+
+  void text(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out,
+            bool required = true, std::size_t max_length = 255) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    if (!n->IsScalar() || n->Scalar().empty()) {
+      error(*n, p, "expected a non-empty string, got " + node_kind(*n));
+      return;
+    }
+    if (n->Scalar().size() > max_length) {
+      error(*n, p, "expected at most " + std::to_string(max_length) + " characters, got " +
+                       std::to_string(n->Scalar().size()));
+      return;
+    }
+    out = n->Scalar();
+  }
+
+  template <typename E>
+  void choice(const YAML::Node& parent, const std::string& path, const std::string& key, E& out,
+              const std::vector<std::pair<std::string, E>>& options, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    std::vector<std::string> names;
+    for (const auto& o : options) names.push_back(o.first);
+    if (n->IsScalar()) {
+      for (const auto& o : options)
+        if (o.first == n->Scalar()) {
+          out = o.second;
+          return;
+        }
+    }
+    error(*n, join_path(path, key), "expected one of: " + join(names) + ", got " + node_kind(*n));
+  }
+
+  // A file path, resolved against the config file's folder; it must exist.
+  void existing_file(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out) {
+    std::string raw;
+    text(parent, path, key, raw, true, 4096);
+    if (raw.empty()) return;
+    fs::path p(raw);
+    if (p.is_relative()) p = fs::path(file_).parent_path() / p;
+    p = p.lexically_normal();
+    std::error_code ec;
+    if (!fs::is_regular_file(p, ec)) {
+      error((*child(parent, path, key, true)), join_path(path, key),
+            "file '" + raw + "' not found (looked for " + p.string() + ")");
+      return;
+    }
+    out = p.string();
+  }
+
+ private:
+  std::string file_;
+  std::vector<ConfigError>& errors_;
+};
+
+void read_executive(Reader& r, const YAML::Node& node, const std::vector<std::string>& known_tasks, CellConfig& cfg,
+                    std::vector<YAML::Mark>& task_marks) {
+  const std::string P = "executive";
+  if (!r.map(node, P, {"base_tick_us", "lane_stall_ms", "supervisor_period_ms", "degrade_recovery_runs",
+                       "lock_memory", "lanes", "tasks"}))
+    return;
+  auto& spec = cfg.executive;
+  long long tick_us = 0;
+  r.integer(node, P, "base_tick_us", tick_us, 50, 1'000'000);
+  spec.tick = micros(tick_us);
+  long long stall_ms = 0, sup_ms = 0;
+  r.integer(node, P, "lane_stall_ms", stall_ms, 1, 60'000);
+  r.integer(node, P, "supervisor_period_ms", sup_ms, 1, 10'000);
+  spec.lane_stall_limit = millis(stall_ms);
+  spec.supervisor_period = millis(sup_ms);
+  r.integer(node, P, "degrade_recovery_runs", spec.degrade_recovery_runs, 1, 1'000'000, false);
+  r.boolean(node, P, "lock_memory", spec.lock_memory, false);
+  if (sup_ms > 0 && stall_ms > 0 && sup_ms * 2 > stall_ms)
+    r.error(node["supervisor_period_ms"], P + ".supervisor_period_ms",
+            "supervisor_period_ms " + std::to_string(sup_ms) + " must be at most half of lane_stall_ms " +
+                std::to_string(stall_ms) + ", or a stall could go unseen for too long");
+
+  std::vector<std::string> lane_names;
+  if (const auto lanes = r.child(node, P, "lanes", true); lanes && r.named_map(*lanes, P + ".lanes")) {
+    if (lanes->size() > static_cast<std::size_t>(control::kMaxTaskLanes))
+      r.error(*lanes, P + ".lanes",
+              "at most " + std::to_string(control::kMaxTaskLanes) + " lanes, got " + std::to_string(lanes->size()));
+    for (const auto& kv : *lanes) {
+      const std::string name = kv.first.Scalar();
+      const std::string LP = P + ".lanes." + name;
+      control::LaneSpec lane;
+      lane.name = name;
+      if (r.map(kv.second, LP, {"core", "priority"})) {
+        r.integer(kv.second, LP, "core", lane.core, -1, 1023);
+        r.integer(kv.second, LP, "priority", lane.priority, 0, 99);
+      }
+      lane_names.push_back(name);
+      spec.lanes.push_back(lane);
+    }
+  }
+
+  if (const auto tasks = r.child(node, P, "tasks", true); tasks && r.named_map(*tasks, P + ".tasks")) {
+    if (tasks->size() > static_cast<std::size_t>(control::kMaxTasks))
+      r.error(*tasks, P + ".tasks",
+              "at most " + std::to_string(control::kMaxTasks) + " tasks, got " + std::to_string(tasks->size()));
+    for (const auto& kv : *tasks) {
+      const std::string name = kv.first.Scalar();
+      const std::string TP = P + ".tasks." + name;
+      if (std::find(known_tasks.begin(), known_tasks.end(), name) == known_tasks.end())
+        r.error_at(kv.first.Mark(), TP, "unknown task '" + name + "' (markcell provides: " + join(known_tasks) + ")");
+      const YAML::Node& t = kv.second;
+      if (!r.map(t, TP, {"lane", "period_us", "phase_us", "budget_us", "on_overrun"})) continue;
+      control::TaskSpec task;
+      task.name = name;
+      std::string lane;
+      r.text(t, TP, "lane", lane);
+      if (!lane.empty()) {
+        const auto it = std::find(lane_names.begin(), lane_names.end(), lane);
+        if (it == lane_names.end())
+          r.error(t["lane"], TP + ".lane",
+                  "lane '" + lane + "' is not declared in executive.lanes (declared: " + join(lane_names) + ")");
+        else
+          task.lane = static_cast<int>(it - lane_names.begin());
+      }
+      long long period_us = 0, phase_us = 0, budget_us = 0;
+      r.integer(t, TP, "period_us", period_us, 1, 3'600'000'000LL);
+      r.integer(t, TP, "phase_us", phase_us, 0, 3'600'000'000LL, false);
+      r.integer(t, TP, "budget_us", budget_us, 1, 3'600'000'000LL);
+      r.choice(t, TP, "on_overrun", task.overrun,
+               {{"log", control::OverrunPolicy::kLog},
+                {"degrade", control::OverrunPolicy::kDegrade},
+                {"safe_stop", control::OverrunPolicy::kSafeStop}},
+               false);
+      if (tick_us > 0 && period_us > 0) {
+        if (period_us % tick_us != 0)
+          r.error(t["period_us"], TP + ".period_us",
+                  "period_us " + std::to_string(period_us) + " is not a multiple of executive.base_tick_us " +
+                      std::to_string(tick_us));
+        else
+          task.period_ticks = static_cast<std::uint32_t>(period_us / tick_us);
+        if (phase_us % tick_us != 0)
+          r.error(t["phase_us"], TP + ".phase_us",
+                  "phase_us " + std::to_string(phase_us) + " is not a multiple of executive.base_tick_us " +
+                      std::to_string(tick_us));
+        else if (phase_us >= period_us)
+          r.error(t["phase_us"], TP + ".phase_us",
+                  "phase_us " + std::to_string(phase_us) + " must be less than period_us " + std::to_string(period_us));
+        else
+          task.phase_ticks = static_cast<std::uint32_t>(phase_us / tick_us);
+      }
+      if (budget_us > 0 && period_us > 0 && budget_us > period_us)
+        r.error(t["budget_us"], TP + ".budget_us",
+                "budget_us " + std::to_string(budget_us) + " is longer than period_us " + std::to_string(period_us));
+      task.budget = micros(budget_us);
+      spec.tasks.push_back(task);
+      task_marks.push_back(kv.first.Mark());
+    }
+    // Every lane must run something, and the stall limit must allow for its slowest gap.
+    for (std::size_t l = 0; l < spec.lanes.size(); ++l) {
+      long long gap_us = 0;
+      bool has_task = false;
+      for (const auto& task : spec.tasks)
+        if (task.lane == static_cast<int>(l)) {
+          has_task = true;
+          const long long p = static_cast<long long>(task.period_ticks) * tick_us;
+          if (gap_us == 0 || p < gap_us) gap_us = p;
+        }
+      const std::string LP = P + ".lanes." + spec.lanes[l].name;
+      if (!has_task)
+        r.error(node["lanes"][spec.lanes[l].name], LP, "lane '" + spec.lanes[l].name + "' runs no task");
+      else if (gap_us > 0 && stall_ms > 0 && stall_ms * 1000 <= 2 * gap_us)
+        r.error(node["lane_stall_ms"], P + ".lane_stall_ms",
+                "lane_stall_ms " + std::to_string(stall_ms) + " must exceed twice the period of lane '" +
+                    spec.lanes[l].name + "' (" + std::to_string(gap_us) + " us)");
+    }
+  }
+}
+
+void read_watchdog(Reader& r, const YAML::Node& node, WatchdogConfig& w) {
+  const std::string P = "watchdog";
+  if (!r.map(node, P, {"systemd", "systemd_interval_ms", "device"})) return;
+  r.boolean(node, P, "systemd", w.systemd);
+  long long interval_ms = 100;
+  r.integer(node, P, "systemd_interval_ms", interval_ms, 10, 600'000, false);
+  w.systemd_interval = millis(interval_ms);
+  if (const auto d = r.child(node, P, "device", true); d && r.map(*d, P + ".device", {"enabled", "path", "timeout_s"})) {
+    r.boolean(*d, P + ".device", "enabled", w.device);
+    r.text(*d, P + ".device", "path", w.device_path);
+    r.integer(*d, P + ".device", "timeout_s", w.device_timeout_s, 0, 3600);
+  }
+}
+
+void read_gpio(Reader& r, const YAML::Node& node, GpioConfig& g) {
+  const std::string P = "devices.gpio";
+  if (!r.map(node, P, {"simulated", "chip", "lines"})) return;
+  r.boolean(node, P, "simulated", g.simulated);
+  r.text(node, P, "chip", g.chip);
+  std::vector<std::string> roles;
+  for (std::size_t i = 0; i < kLineRoleCount; ++i) roles.emplace_back(to_string(static_cast<LineRole>(i)));
+  const auto lines = r.child(node, P, "lines", true);
+  if (!lines || !r.map(*lines, P + ".lines", roles)) return;
+  for (std::size_t i = 0; i < kLineRoleCount; ++i) {
+    const std::string LP = P + ".lines." + roles[i];
+    const auto l = r.child(*lines, P + ".lines", roles[i], true);
+    if (!l || !r.map(*l, LP, {"line", "active_low"})) continue;
+    r.text(*l, LP, "line", g.lines[i].line);
+    r.boolean(*l, LP, "active_low", g.lines[i].active_low, false);
+    for (std::size_t j = 0; j < i; ++j)
+      if (!g.lines[i].line.empty() && g.lines[j].line == g.lines[i].line)
+        r.error((*l)["line"], LP + ".line",
+                "line '" + g.lines[i].line + "' is already used by " + roles[j] + " (each role needs its own line)");
+  }
+}
+
+void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
+  const std::string P = "devices.arm";
+  if (!r.map(node, P, {"transport", "can", "serial"})) return;
+  r.choice(node, P, "transport", a.transport,
+           {{"simulated", ArmTransport::kSimulated}, {"can", ArmTransport::kCan}, {"serial", ArmTransport::kSerial}});
+  if (const auto c = r.child(node, P, "can", a.transport == ArmTransport::kCan);
+      c && r.map(*c, P + ".can", {"interface", "node_id", "controller_node_id", "heartbeat_ms", "heartbeat_timeout_ms", "fd"})) {
+    const std::string CP = P + ".can";
+    r.text(*c, CP, "interface", a.can.interface, true, 15);  // IFNAMSIZ - 1
+    r.integer(*c, CP, "node_id", a.can.node_id, 1, 127);
+    r.integer(*c, CP, "controller_node_id", a.can.controller_node_id, 1, 127);
+    long long hb = 50, hbt = 150;
+    r.integer(*c, CP, "heartbeat_ms", hb, 1, 65'535);
+    r.integer(*c, CP, "heartbeat_timeout_ms", hbt, 1, 65'535);
+    r.boolean(*c, CP, "fd", a.can.fd, false);
+    a.can.heartbeat_period = millis(hb);
+    a.can.heartbeat_timeout = millis(hbt);
+    if (a.can.node_id == a.can.controller_node_id)
+      r.error((*c)["controller_node_id"], CP + ".controller_node_id",
+              "controller_node_id must differ from node_id " + std::to_string(a.can.node_id));
+    if (hbt <= hb)
+      r.error((*c)["heartbeat_timeout_ms"], CP + ".heartbeat_timeout_ms",
+              "heartbeat_timeout_ms " + std::to_string(hbt) + " must exceed heartbeat_ms " + std::to_string(hb));
+  }
+  if (const auto s = r.child(node, P, "serial", a.transport == ArmTransport::kSerial);
+      s && r.map(*s, P + ".serial", {"device", "baud", "ack_timeout_ms", "retries"})) {
+    const std::string SP = P + ".serial";
+    r.text(*s, SP, "device", a.serial.device);
+    r.integer(*s, SP, "baud", a.serial.baud, 1, 4'000'000);
+    static constexpr std::array<int, 10> kBauds = {9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000};
+    if (a.serial.baud > 0 && std::find(kBauds.begin(), kBauds.end(), a.serial.baud) == kBauds.end())
+      r.error((*s)["baud"], SP + ".baud",
+              "baud " + std::to_string(a.serial.baud) +
+                  " is not a termios rate (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000)");
+    long long ack = 20;
+    r.integer(*s, SP, "ack_timeout_ms", ack, 1, 10'000);
+    a.serial.ack_timeout = millis(ack);
+    r.integer(*s, SP, "retries", a.serial.retries, 0, 100);
+  }
+}
+
+void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
+  const std::string P = "devices.cameras";
+  if (!r.map(node, P, {"source", "left_id", "right_id", "width", "height", "fps", "exposure_us", "gain_db", "trigger"}))
+    return;
+  r.choice(node, P, "source", c.source,
+           {{"simulated", CameraSource::kSimulated}, {"aravis", CameraSource::kAravis}, {"recording", CameraSource::kRecording}});
+  const bool ids_required = c.source == CameraSource::kAravis;
+  r.text(node, P, "left_id", c.left_id, ids_required);
+  r.text(node, P, "right_id", c.right_id, ids_required);
+  if (!c.left_id.empty() && c.left_id == c.right_id)
+    r.error(node["right_id"], P + ".right_id", "right_id must differ from left_id '" + c.left_id + "'");
+  r.integer(node, P, "width", c.width, 16, 16384);
+  r.integer(node, P, "height", c.height, 16, 16384);
+  r.number(node, P, "fps", c.fps, 0.1, 1000.0);
+  r.number(node, P, "exposure_us", c.exposure_us, 1.0, 1e6);
+  r.number(node, P, "gain_db", c.gain_db, 0.0, 48.0, false);
+  r.choice(node, P, "trigger", c.trigger, {{"software", CameraTrigger::kSoftware}, {"hardware", CameraTrigger::kHardware}});
+  if (c.fps > 0 && c.exposure_us > 1e6 / c.fps)
+    r.error(node["exposure_us"], P + ".exposure_us", "exposure longer than the frame period at the configured fps");
+}
+
+void read_calibration(Reader& r, const YAML::Node& node, CellConfig& cfg) {
+  const std::string P = "calibration";
+  if (!r.map(node, P, {"stereo", "base"})) return;
+  r.existing_file(node, P, "stereo", cfg.calibration.stereo);
+  r.existing_file(node, P, "base", cfg.calibration.base);
+  // The files themselves: parsed now so that a bad matrix stops the start, with its key.
+  if (!cfg.calibration.stereo.empty()) {
+    try {
+      const auto stereo = vision::load_stereo_calibration(cfg.calibration.stereo);
+      if (stereo.left.width != cfg.cameras.width || stereo.left.height != cfg.cameras.height)
+        r.error(node["stereo"], P + ".stereo",
+                "calibrated for " + std::to_string(stereo.left.width) + "x" + std::to_string(stereo.left.height) +
+                    " images, devices.cameras is " + std::to_string(cfg.cameras.width) + "x" +
+                    std::to_string(cfg.cameras.height));
+    } catch (const vision::CalibrationError& e) {
+      r.error(node["stereo"], P + ".stereo", e.what());
+    }
+  }
+  if (!cfg.calibration.base.empty()) {
+    try {
+      vision::load_pose(cfg.calibration.base, "X_Base_CamR");
+    } catch (const vision::CalibrationError& e) {
+      r.error(node["base"], P + ".base", e.what());
+    }
+  }
+}
+
+void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
+  const std::string P = "panel_types";
+  if (!r.named_map(node, P)) return;
+  for (const auto& kv : node) {
+    const std::string name = kv.first.Scalar();
+    const std::string TP = P + "." + name;
+    PanelTypeConfig panel;
+    panel.name = name;
+    if (r.map(kv.second, TP, {"macro_features"})) r.integer(kv.second, TP, "macro_features", panel.macro_features, 3, 64);
+    cfg.panel_types.push_back(panel);
+  }
+}
+
+}  // namespace
+
+std::vector<ConfigError> check_config(const std::string& path, const std::vector<std::string>& known_tasks) {
+  std::vector<ConfigError> errors;
+  try {
+    load_config(path, known_tasks);
+  } catch (const ConfigInvalid& e) {
+    errors = e.errors();
+  }
+  return errors;
+}
+
+CellConfig load_config(const std::string& path, const std::vector<std::string>& known_tasks) {
+  std::vector<ConfigError> errors;
+  Reader r(path, errors);
+  CellConfig cfg;
+  cfg.file = path;
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw ConfigInvalid({ConfigError{path, 0, 0, "", "cannot open the file"}});
+  } catch (const YAML::ParserException& e) {
+    throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML syntax: " + e.msg}});
+  }
+  if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "devices", "calibration", "panel_types"}))
+    throw ConfigInvalid(errors);
+
+  if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name"}))
+    r.text(*cell, "cell", "name", cfg.name);
+  std::vector<YAML::Mark> task_marks;
+  if (const auto e = r.child(root, "", "executive", true)) read_executive(r, *e, known_tasks, cfg, task_marks);
+  if (const auto w = r.child(root, "", "watchdog", true)) read_watchdog(r, *w, cfg.watchdog);
+  if (const auto s = r.child(root, "", "safe_stop", true); s && r.map(*s, "safe_stop", {"arm", "plc_fault_line"})) {
+    r.choice(*s, "safe_stop", "arm", cfg.safe_stop.arm, {{"hold", ArmSafeAction::kHold}, {"home", ArmSafeAction::kHome}});
+    r.boolean(*s, "safe_stop", "plc_fault_line", cfg.safe_stop.plc_fault_line);
+  }
+  if (const auto d = r.child(root, "", "devices", true); d && r.map(*d, "devices", {"gpio", "arm", "cameras"})) {
+    if (const auto g = r.child(*d, "devices", "gpio", true)) read_gpio(r, *g, cfg.gpio);
+    if (const auto a = r.child(*d, "devices", "arm", true)) read_arm(r, *a, cfg.arm);
+    if (const auto c = r.child(*d, "devices", "cameras", true)) read_cameras(r, *c, cfg.cameras);
+  }
+  if (const auto c = r.child(root, "", "calibration", true)) read_calibration(r, *c, cfg);
+  if (const auto p = r.child(root, "", "panel_types", true)) read_panel_types(r, *p, cfg);
+
+  if (!errors.empty()) throw ConfigInvalid(std::move(errors));
+  // The loader has checked everything the executive checks; this is the last line of
+  // defence and must agree.
+  control::validate(cfg.executive);
+  return cfg;
+}
+
+}  // namespace markcell::host

@@ -1,0 +1,167 @@
+// markcell: the controller of a robotic defect-marking cell. One executable; the
+// subcommands are the cell (`run`), its tools and its benchmarks.
+//
+// Exit codes: 0 success; 1 runtime failure (a device, a fault at start-up); 2 invalid
+// configuration or arguments (every problem is printed, each naming what to fix).
+#include <signal.h>
+
+#include <CLI/CLI.hpp>
+#include <cstdio>
+#include <iostream>
+#include <string>
+
+#include "markcell/common/check.hpp"
+#include "markcell/host/bench.hpp"
+#include "markcell/host/cell.hpp"
+#include "markcell/host/config.hpp"
+
+namespace {
+
+using namespace markcell;
+using namespace markcell::host;
+
+constexpr int kExitRuntime = 1;
+constexpr int kExitConfig = 2;
+
+int check_config_command(const std::string& file) {
+  const auto errors = check_config(file, task_catalog());
+  if (errors.empty()) {
+    std::cout << file << ": valid\n";
+    return 0;
+  }
+  for (const auto& e : errors) std::cerr << e.to_string() << "\n";
+  std::cerr << errors.size() << " error(s) in " << file << "\n";
+  return kExitConfig;
+}
+
+void print_faults(control::FaultLog& log) {
+  control::Fault f;
+  int shown = 0;
+  while (log.pop(f)) {
+    if (shown++ == 0) std::cout << "\nfaults:\n";
+    std::printf("  t=%.6f s  %-14s %-16s %s\n", to_seconds(f.time), std::string(control::to_string(f.code)).c_str(),
+                f.source.c_str(), f.detail.c_str());
+  }
+  if (log.dropped() > 0) std::printf("  (%llu faults dropped: the log was full)\n", static_cast<unsigned long long>(log.dropped()));
+}
+
+int run_command(const std::string& file, const std::string& clock_name, double seconds) {
+  CellConfig config;
+  try {
+    config = load_config(file, task_catalog());
+  } catch (const ConfigInvalid& e) {
+    for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
+    return kExitConfig;
+  }
+  const bool simulated = clock_name == "sim";
+  // Signals are taken synchronously by this thread: block them before any lane exists so
+  // that every thread inherits the mask.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  Cell cell(config, simulated ? ClockKind::kSimulated : ClockKind::kReal);
+  try {
+    cell.start();
+  } catch (const std::exception& e) {
+    std::cerr << "markcell: start-up failed: " << e.what() << "\n";
+    return kExitRuntime;
+  }
+  for (const auto& w : cell.privilege_warnings()) std::cerr << "<4>markcell: warning: " << w << "\n";
+  std::fprintf(stderr, "<6>markcell: cell '%s' running on the %s clock", config.name.c_str(), simulated ? "simulated" : "real");
+  if (seconds > 0) std::fprintf(stderr, " for %g s", seconds);
+  std::fprintf(stderr, "\n");
+
+  std::string stop_reason = "duration elapsed";
+  if (simulated) {
+    const Nanos end = cell.sim_clock()->global_now() + static_cast<Nanos>(seconds * 1e9);
+    if (cell.sim_clock()->run_until(end) == control::SimClock::RunResult::kWedged) stop_reason = "simulation wedged";
+  } else {
+    const Nanos end = seconds > 0 ? monotonic_now() + static_cast<Nanos>(seconds * 1e9) : 0;
+    for (;;) {
+      // Bounded wait: wakes at once on a signal, at least every second otherwise.
+      Nanos wait = seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
+      if (wait <= 0) break;
+      if (wait > kNanosPerSecond) wait = kNanosPerSecond;
+      const timespec ts = to_timespec(wait);
+      const int sig = sigtimedwait(&signals, nullptr, &ts);
+      if (sig == SIGTERM || sig == SIGINT) {
+        stop_reason = sig == SIGTERM ? "SIGTERM" : "SIGINT";
+        break;
+      }
+    }
+  }
+  cell.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason);
+  std::fprintf(stderr, "<6>markcell: stopped (%s)\n", stop_reason.c_str());
+  std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n"
+            << cell.executive().timing_report();
+  print_faults(cell.faults());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"markcell: controller of a robotic cell that tracks moving body panels and spray-marks their surface defects"};
+  app.require_subcommand(1);
+  app.set_help_all_flag("--help-all", "Show help for every subcommand");
+
+  std::string check_file;
+  auto* check = app.add_subcommand("check-config", "Validate a cell configuration; print every error and exit 2 if any");
+  check->add_option("FILE", check_file, "Cell configuration (YAML)")->required();
+
+  std::string run_file;
+  std::string clock_name = "real";
+  double run_seconds = 0;
+  auto* run = app.add_subcommand("run", "Run the cell from its configuration until SIGTERM/SIGINT (or --seconds)");
+  run->add_option("--config,-c", run_file, "Cell configuration (YAML)")->required();
+  run->add_option("--clock", clock_name, "real: CLOCK_MONOTONIC; sim: simulated time, as fast as it computes")
+      ->check(CLI::IsMember({"real", "sim"}));
+  run->add_option("--seconds", run_seconds, "Stop after this long (0: until a signal; needed with --clock sim)")
+      ->check(CLI::NonNegativeNumber);
+
+  auto* bench = app.add_subcommand("bench", "Benchmarks");
+  bench->require_subcommand(1);
+  LoopBenchOptions loop_options;
+  std::string bench_config = "config/cell.example.yaml";
+  auto* loop = bench->add_subcommand("loop", "Control lane wake-up latency at 1 kHz vs cyclictest, same run");
+  loop->add_option("--config,-c", bench_config, "Cell configuration (its control lane's core and priority)");
+  loop->add_option("--seconds", loop_options.seconds, "Duration of each of the two measurements")->check(CLI::PositiveNumber);
+  loop->add_option("--lane", loop_options.lane, "Which lane of the configuration to measure");
+  loop->add_option("--json", loop_options.json_path, "Write the results as JSON to this file");
+  loop->add_option("--cyclictest", loop_options.cyclictest, "The cyclictest executable");
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? 0 : kExitConfig;
+  }
+
+  try {
+    if (*check) return check_config_command(check_file);
+    if (*run) {
+      if (clock_name == "sim" && run_seconds <= 0) {
+        std::cerr << "markcell run: --clock sim needs --seconds (simulated time has no signal to stop it)\n";
+        return kExitConfig;
+      }
+      return run_command(run_file, clock_name, run_seconds);
+    }
+    if (*loop) {
+      CellConfig config;
+      try {
+        config = load_config(bench_config, task_catalog());
+      } catch (const ConfigInvalid& e) {
+        for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
+        return kExitConfig;
+      }
+      return bench_loop(config, loop_options);
+    }
+  } catch (const std::exception& e) {
+    std::cerr << "markcell: " << e.what() << "\n";
+    return kExitRuntime;
+  }
+  return 0;
+}

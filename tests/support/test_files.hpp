@@ -1,0 +1,30 @@
+#pragma once
+// Temporary files and folders for tests, removed when the object goes.
+#include <filesystem>
+#include <string>
+
+namespace markcell::test {
+
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  const std::filesystem::path& path() const { return path_; }
+  // Writes `text` to `name` inside the folder and returns the full path.
+  std::string write(const std::string& name, const std::string& text) const;
+
+ private:
+  std::filesystem::path path_;
+};
+
+std::string read_file(const std::string& path);
+std::string source_path(const std::string& relative);  // inside the source tree
+
+// Runs a command through /bin/sh, capturing stdout and stderr together.
+struct CommandResult {
+  int exit_code = -1;
+  std::string output;
+};
+CommandResult run_command(const std::string& command);
+
+}  // namespace markcell::test

@@ -1,0 +1,54 @@
+// The markcell executable as a user meets it: help, check-config, run.
+#include <catch2/catch.hpp>
+#include <string>
+
+#include "test_files.hpp"
+
+using markcell::test::run_command;
+using markcell::test::source_path;
+
+namespace {
+const std::string kMarkcell = MARKCELL_BINARY;
+}
+
+TEST_CASE("every subcommand has --help") {
+  for (const char* sub : {"check-config", "run", "bench", "bench loop"}) {
+    const auto r = run_command(kMarkcell + " " + sub + " --help");
+    INFO(sub << ": " << r.output);
+    CHECK(r.exit_code == 0);
+    CHECK(r.output.find("Usage:") != std::string::npos);
+  }
+  const auto none = run_command(kMarkcell);
+  CHECK(none.exit_code == 2);
+}
+
+TEST_CASE("check-config: valid file exits 0, a bad one prints every error and exits 2") {
+  const auto ok = run_command(kMarkcell + " check-config " + source_path("config/cell.example.yaml"));
+  CHECK(ok.exit_code == 0);
+  CHECK(ok.output.find(": valid") != std::string::npos);
+
+  markcell::test::TempDir dir;
+  std::string text = markcell::test::read_file(source_path("config/cell.example.yaml"));
+  text.replace(text.find("base_tick_us: 1000"), 18, "base_tick_us: 0");
+  text.replace(text.find("baud: 115200"), 12, "baud: 115201");
+  const std::string file = dir.write("cell.yaml", text);
+  for (const char* cal : {"calibration/marking_stereo.yaml", "calibration/base.yaml"})
+    dir.write(cal, markcell::test::read_file(source_path(std::string("config/") + cal)));
+  const auto bad = run_command(kMarkcell + " check-config " + file);
+  INFO(bad.output);
+  CHECK(bad.exit_code == 2);
+  CHECK(bad.output.find(file + ":9:17: executive.base_tick_us: expected an integer in [50, 1000000], got 0") != std::string::npos);
+  CHECK(bad.output.find("devices.arm.serial.baud: baud 115201 is not a termios rate") != std::string::npos);
+  CHECK(bad.output.find("2 error(s) in " + file) != std::string::npos);
+}
+
+TEST_CASE("run on the simulated clock prints the timing report") {
+  const auto r = run_command(kMarkcell + " run --config " + source_path("config/cell.example.yaml") +
+                             " --clock sim --seconds 2");
+  INFO(r.output);
+  CHECK(r.exit_code == 0);
+  CHECK(r.output.find("timing report (simulated clock)") != std::string::npos);
+  // plc_io at 1 kHz for 2 simulated seconds: releases at 0..2000 ms inclusive.
+  CHECK(r.output.find("plc_io             control        1.000        200      2001") != std::string::npos);
+  CHECK(r.output.find("shutdown       markcell         duration elapsed") != std::string::npos);
+}

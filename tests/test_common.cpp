@@ -1,0 +1,137 @@
+// Building blocks: the cross-lane triple buffer, the fixed histogram, the fault log and
+// the allocation guard the other tests rely on.
+#include <algorithm>
+#include <atomic>
+#include <catch2/catch.hpp>
+#include <cstdlib>
+#include <random>
+#include <thread>
+#include <vector>
+
+#include "alloc_guard.hpp"
+#include "markcell/common/fixed_string.hpp"
+#include "markcell/common/triple_buffer.hpp"
+#include "markcell/control/faults.hpp"
+#include "markcell/control/histogram.hpp"
+
+using namespace markcell;
+
+TEST_CASE("the allocation guard sees operator new and malloc from any thread") {
+  test::AllocationGuard guard;
+  CHECK(guard.allocations() == 0);
+  auto* p = new int(3);
+  CHECK(guard.allocations() == 1);
+  delete p;
+  void* volatile m = std::malloc(64);  // volatile: the pair cannot be optimised away
+  CHECK(guard.allocations() == 2);
+  std::free(m);
+  std::size_t before = guard.allocations();
+  std::thread([] { std::vector<int> v(100); (void)v; }).join();  // the thread's state and the vector
+  CHECK(guard.allocations() >= before + 2);
+}
+
+TEST_CASE("triple buffer: the reader sees the newest complete value, never a torn one") {
+  struct Pair {
+    std::uint64_t a = 0, b = 0;  // the writer always stores b = 2a + 1
+  };
+  TripleBuffer<Pair> buffer;
+  CHECK_FALSE(buffer.update());
+  buffer.write(Pair{1, 3});
+  buffer.write(Pair{2, 5});
+  REQUIRE(buffer.update());
+  CHECK(buffer.read().a == 2);  // the older one was overwritten, not queued
+  CHECK_FALSE(buffer.update());
+  CHECK(buffer.read().a == 2);
+
+  constexpr std::uint64_t kWrites = 200000;
+  std::atomic<bool> done{false}, started{false}, go{false};
+  std::thread writer([&] {
+    started = true;
+    while (!go.load()) std::this_thread::yield();
+    for (std::uint64_t i = 3; i <= kWrites; ++i) {
+      Pair& slot = buffer.write_slot();
+      slot.a = i;
+      slot.b = 2 * i + 1;
+      buffer.publish();
+    }
+    done = true;
+  });
+  std::uint64_t last = 2, torn = 0, backwards = 0;
+  while (!started.load()) std::this_thread::yield();  // the thread's own start-up allocates
+  test::AllocationGuard guard;
+  go = true;
+  while (!done.load() || buffer.update()) {
+    if (!buffer.update()) continue;
+    const Pair& p = buffer.read();
+    if (p.b != 2 * p.a + 1) ++torn;
+    if (p.a < last) ++backwards;
+    last = p.a;
+  }
+  const auto allocations = guard.allocations();
+  writer.join();
+  CHECK(torn == 0);
+  CHECK(backwards == 0);
+  CHECK(last == kWrites);
+  CHECK(allocations == 0);
+}
+
+TEST_CASE("histogram percentiles bound the exact order statistics within one bucket") {
+  std::mt19937_64 rng(42);
+  std::lognormal_distribution<double> dist(10.0, 1.5);  // ns, wide spread
+  control::Histogram h;
+  std::vector<Nanos> values;
+  for (int i = 0; i < 20000; ++i) {
+    const auto v = static_cast<Nanos>(dist(rng));
+    values.push_back(v);
+    h.record(v);
+  }
+  std::sort(values.begin(), values.end());
+  CHECK(h.count() == values.size());
+  CHECK(h.min() == values.front());
+  CHECK(h.max() == values.back());
+  for (double p : {0.5, 0.9, 0.99, 0.999}) {
+    const auto rank = static_cast<std::size_t>(std::ceil(p * static_cast<double>(values.size())));
+    const Nanos exact = values[rank - 1];
+    const Nanos estimate = h.percentile(p);
+    INFO("p=" << p << " exact=" << exact << " estimate=" << estimate);
+    CHECK(estimate >= exact);  // an upper bound...
+    CHECK(static_cast<double>(estimate) <= static_cast<double>(exact) * (1.0 + 1.0 / 16) + 1);  // ...within a bucket
+  }
+  // Exact for small values, and the bucket edges are consistent.
+  for (Nanos v : {0, 1, 15, 16, 17, 1000, 123456789}) {
+    const int b = control::Histogram::bucket_of(v);
+    CHECK(control::Histogram::bucket_upper(b) >= v);
+    if (b > 0) CHECK(control::Histogram::bucket_upper(b - 1) < v);
+  }
+}
+
+TEST_CASE("fault log keeps order, counts what it cannot hold, and does not allocate") {
+  control::FaultLog log;
+  control::Fault f;
+  test::AllocationGuard guard;
+  for (std::size_t i = 0; i < control::FaultLog::kCapacity + 5; ++i) {
+    f.time = static_cast<Nanos>(i);
+    f.code = control::FaultCode::kTaskOverrun;
+    f.detail.format("fault %zu", i);
+    log.push(f);
+  }
+  CHECK(guard.allocations() == 0);
+  CHECK(log.recorded() == control::FaultLog::kCapacity);
+  CHECK(log.dropped() == 5);
+  control::Fault out;
+  REQUIRE(log.pop(out));
+  CHECK(out.time == 0);
+  CHECK(out.detail.view() == "fault 0");
+  std::size_t n = 1;
+  while (log.pop(out)) ++n;
+  CHECK(n == control::FaultLog::kCapacity);
+  CHECK(out.time == static_cast<Nanos>(control::FaultLog::kCapacity - 1));
+}
+
+TEST_CASE("fixed strings truncate at capacity instead of allocating") {
+  FixedString<8> s("0123456789");
+  CHECK(s.view() == "01234567");
+  const char* volatile tail = "abcdefgh";  // not a constant: the truncation happens at run time
+  s.format("%d-%s", 42, tail);
+  CHECK(s.view() == "42-abcde");
+}

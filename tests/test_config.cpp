@@ -1,0 +1,194 @@
+// The cell configuration: the example loads, and every class of bad input is reported
+// with file, line, column, key path and what was expected - all of them, not the first.
+#include <catch2/catch.hpp>
+#include <filesystem>
+#include <string>
+
+#include "markcell/host/cell.hpp"
+#include "markcell/host/config.hpp"
+#include "test_files.hpp"
+
+using namespace markcell;
+using namespace markcell::host;
+
+namespace {
+
+// A small valid configuration; line numbers below refer to this text (line 1 = "cell:").
+const std::string kValid = R"(cell:
+  name: test-cell
+executive:
+  base_tick_us: 1000
+  lane_stall_ms: 50
+  supervisor_period_ms: 10
+  lanes:
+    control: {core: -1, priority: 0}
+  tasks:
+    plc_io: {lane: control, period_us: 1000, budget_us: 200, on_overrun: safe_stop}
+watchdog:
+  systemd: true
+  device: {enabled: false, path: /dev/watchdog, timeout_s: 10}
+safe_stop: {arm: hold, plc_fault_line: true}
+devices:
+  gpio:
+    simulated: true
+    chip: gpiochip0
+    lines:
+      spray_valve: {line: V}
+      camera_trigger: {line: T}
+      plc_panel_present: {line: P}
+      plc_cycle_enable: {line: E}
+      plc_estop: {line: S, active_low: true}
+      plc_ready: {line: R}
+      plc_busy: {line: B}
+      plc_done: {line: D}
+      plc_fault: {line: F}
+  arm: {transport: simulated}
+  cameras: {source: simulated, width: 640, height: 480, fps: 30, exposure_us: 4000, trigger: hardware}
+calibration:
+  stereo: stereo.yaml
+  base: base.yaml
+panel_types:
+  door: {macro_features: 10}
+)";
+
+struct Fixture {
+  Fixture() {
+    dir.write("stereo.yaml", test::read_file(test::source_path("config/calibration/marking_stereo.yaml")));
+    dir.write("base.yaml", test::read_file(test::source_path("config/calibration/base.yaml")));
+  }
+  std::vector<ConfigError> check(const std::string& text) {
+    return check_config(dir.write("cell.yaml", text), task_catalog());
+  }
+  std::string file() const { return (dir.path() / "cell.yaml").string(); }
+  test::TempDir dir;
+};
+
+std::string replace(std::string s, const std::string& from, const std::string& to) {
+  const auto at = s.find(from);
+  REQUIRE(at != std::string::npos);
+  return s.replace(at, from.size(), to);
+}
+
+std::vector<std::string> messages(const std::vector<ConfigError>& errors) {
+  std::vector<std::string> out;
+  for (const auto& e : errors) out.push_back(e.to_string());
+  return out;
+}
+
+}  // namespace
+
+TEST_CASE("the example configuration loads") {
+  const auto cfg = load_config(test::source_path("config/cell.example.yaml"), task_catalog());
+  CHECK(cfg.name == "marking-station-sim");
+  CHECK(cfg.executive.tick == millis(1));
+  REQUIRE(cfg.executive.lanes.size() == 1);
+  CHECK(cfg.executive.lanes[0].priority == 80);
+  REQUIRE(cfg.executive.tasks.size() == 1);
+  CHECK(cfg.executive.tasks[0].budget == micros(200));
+  CHECK(cfg.executive.tasks[0].overrun == control::OverrunPolicy::kSafeStop);
+  CHECK(cfg.gpio.lines[static_cast<std::size_t>(LineRole::kPlcEstop)].active_low);
+  CHECK(std::filesystem::path(cfg.calibration.stereo).is_absolute());
+  CHECK(std::filesystem::exists(cfg.calibration.base));
+  CHECK(cfg.panel_types.size() == 2);
+}
+
+TEST_CASE_METHOD(Fixture, "a valid configuration has no error") { CHECK(check(kValid).empty()); }
+
+TEST_CASE_METHOD(Fixture, "unknown keys are errors, with their position") {
+  const auto e = check(replace(kValid, "  lane_stall_ms: 50\n", "  lane_stall_ms: 50\n  lane_stal_ms: 50\n"));
+  REQUIRE(e.size() == 1);
+  CHECK(e[0].to_string() == file() + ":6:3: executive.lane_stal_ms: unknown key 'lane_stal_ms' (expected one of: "
+                                     "base_tick_us, lane_stall_ms, supervisor_period_ms, degrade_recovery_runs, "
+                                     "lock_memory, lanes, tasks)");
+}
+
+TEST_CASE_METHOD(Fixture, "missing keys are errors at the map that lacks them") {
+  const auto e = check(replace(kValid, "budget_us: 200, ", ""));
+  REQUIRE(e.size() == 1);
+  CHECK(e[0].to_string() == file() + ":10:13: executive.tasks.plc_io.budget_us: missing required key 'budget_us'");
+}
+
+TEST_CASE_METHOD(Fixture, "wrong types name what was expected and what was found") {
+  const auto e = check(replace(replace(kValid, "base_tick_us: 1000", "base_tick_us: fast"), "systemd: true", "systemd: [1]"));
+  REQUIRE(e.size() >= 2);
+  CHECK(e[0].to_string() == file() + ":4:17: executive.base_tick_us: expected an integer in [50, 1000000], got \"fast\"");
+  CHECK(e.back().to_string() == file() + ":12:12: watchdog.systemd: expected true or false, got a sequence");
+}
+
+TEST_CASE_METHOD(Fixture, "out-of-range values") {
+  const auto e = check(replace(kValid, "{core: -1, priority: 0}", "{core: -1, priority: 120}"));
+  REQUIRE(e.size() == 1);
+  CHECK(e[0].to_string() == file() + ":8:35: executive.lanes.control.priority: expected an integer in [0, 99], got 120");
+}
+
+TEST_CASE_METHOD(Fixture, "a task period that is not a multiple of the tick") {
+  const auto e = check(replace(kValid, "period_us: 1000,", "period_us: 2500,"));
+  REQUIRE(e.size() == 1);
+  CHECK(e[0].to_string() == file() + ":10:40: executive.tasks.plc_io.period_us: period_us 2500 is not a multiple of "
+                                     "executive.base_tick_us 1000");
+}
+
+TEST_CASE_METHOD(Fixture, "a budget longer than the period") {
+  const auto e = check(replace(kValid, "budget_us: 200", "budget_us: 1200"));
+  REQUIRE(e.size() == 1);
+  CHECK(e[0].to_string() == file() + ":10:57: executive.tasks.plc_io.budget_us: budget_us 1200 is longer than period_us 1000");
+}
+
+TEST_CASE_METHOD(Fixture, "references to undeclared lanes and unknown tasks") {
+  const auto e = check(replace(kValid, "    plc_io: {lane: control,",
+                               "    vision_track: {lane: vison, period_us: 1000, budget_us: 100}\n    plc_io: {lane: control,"));
+  const auto m = messages(e);
+  for (const auto& x : m) UNSCOPED_INFO(x);
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":10:5: executive.tasks.vision_track: unknown task 'vision_track' (markcell provides: plc_io)");
+  CHECK(m[1] == file() + ":10:26: executive.tasks.vision_track.lane: lane 'vison' is not declared in executive.lanes "
+                         "(declared: control)");
+}
+
+TEST_CASE_METHOD(Fixture, "inconsistent values across sections") {
+  const auto text = replace(replace(kValid, "plc_done: {line: D}", "plc_done: {line: B}"), "lane_stall_ms: 50",
+                            "lane_stall_ms: 15");
+  const auto m = messages(check(text));
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":6:25: executive.supervisor_period_ms: supervisor_period_ms 10 must be at most half of "
+                         "lane_stall_ms 15, or a stall could go unseen for too long");
+  CHECK(m[1] == file() + ":27:24: devices.gpio.lines.plc_done.line: line 'B' is already used by plc_busy (each role "
+                         "needs its own line)");
+}
+
+TEST_CASE_METHOD(Fixture, "missing files and malformed calibration files") {
+  dir.write("bad_stereo.yaml", "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\nK1: !!opencv-matrix\n   rows: 3\n"
+                               "   cols: 4\n   dt: d\n   data: [1,0,0,0, 0,1,0,0, 0,0,1,0]\n");
+  const auto text = replace(replace(kValid, "stereo: stereo.yaml", "stereo: bad_stereo.yaml"), "base: base.yaml",
+                            "base: calib/nowhere.yaml");
+  const auto m = messages(check(text));
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":33:9: calibration.base: file 'calib/nowhere.yaml' not found (looked for " +
+                    (dir.path() / "calib/nowhere.yaml").string() + ")");
+  CHECK(m[1] == file() + ":32:11: calibration.stereo: " + (dir.path() / "bad_stereo.yaml").string() +
+                    ": key 'K1': expected a 3x3 matrix, got 3x4");
+}
+
+TEST_CASE_METHOD(Fixture, "YAML syntax errors carry their position") {
+  const auto m = messages(check(replace(kValid, "  door: {macro_features: 10}", "  door: {macro_features: 10")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0].rfind(file() + ":", 0) == 0);
+  CHECK(m[0].find("(document): YAML syntax: ") != std::string::npos);
+}
+
+TEST_CASE_METHOD(Fixture, "every error is reported, not only the first") {
+  std::string text = replace(kValid, "base_tick_us: 1000", "base_tick_us: 0");
+  text = replace(text, "fps: 30", "fps: -1");
+  text = replace(text, "transport: simulated", "transport: ethercat");
+  text = replace(text, "door: {macro_features: 10}", "door: {macro_features: 10, colour: red}");
+  const auto e = check(text);
+  const auto m = messages(e);
+  for (const auto& x : m) UNSCOPED_INFO(x);
+  REQUIRE(m.size() == 4);
+  CHECK(e[0].path == "executive.base_tick_us");
+  CHECK(e[1].path == "devices.arm.transport");
+  CHECK(e[1].message == "expected one of: simulated, can, serial, got \"ethercat\"");
+  CHECK(e[2].path == "devices.cameras.fps");
+  CHECK(e[3].path == "panel_types.door.colour");
+  REQUIRE_THROWS_AS(load_config(file(), task_catalog()), ConfigInvalid);
+}

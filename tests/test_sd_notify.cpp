@@ -1,0 +1,124 @@
+// systemd's notify protocol, seen from systemd's side: the test owns NOTIFY_SOCKET.
+#include <sys/socket.h>
+#include <sys/un.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <chrono>
+#include <cstdlib>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "markcell/control/executive.hpp"
+#include "markcell/host/sd_notify.hpp"
+#include "test_files.hpp"
+
+using namespace markcell;
+using namespace markcell::control;
+
+namespace {
+
+// A datagram socket standing in for systemd's notify socket.
+class NotifyListener {
+ public:
+  explicit NotifyListener(const std::string& path) {
+    fd_ = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+    REQUIRE(fd_ >= 0);
+    sockaddr_un addr{};
+    addr.sun_family = AF_UNIX;
+    REQUIRE(path.size() < sizeof(addr.sun_path));
+    path.copy(addr.sun_path, path.size());
+    REQUIRE(bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0);
+    timeval tv{0, 20'000};
+    setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
+  }
+  ~NotifyListener() { close(fd_); }
+  struct Message {
+    Nanos time;
+    std::string text;
+  };
+  // Collects every datagram that arrives within `duration`.
+  template <typename Done = bool (*)()>
+  void collect(std::chrono::milliseconds duration, Done done = [] { return false; }) {
+    const Nanos end = monotonic_now() + duration.count() * kNanosPerMilli;
+    char buf[512];
+    while (monotonic_now() < end && !done()) {
+      const auto n = recv(fd_, buf, sizeof(buf), 0);
+      if (n > 0) messages.push_back({monotonic_now(), std::string(buf, static_cast<std::size_t>(n))});
+    }
+  }
+  std::vector<Message> messages;
+
+ private:
+  int fd_ = -1;
+};
+
+}  // namespace
+
+TEST_CASE("READY=1, WATCHDOG=1 at the interval while the lanes tick, none once a lane stalls, STOPPING=1") {
+  test::TempDir dir;
+  const std::string socket_path = (dir.path() / "notify").string();
+  NotifyListener listener(socket_path);
+  setenv("NOTIFY_SOCKET", socket_path.c_str(), 1);
+  setenv("WATCHDOG_USEC", "200000", 1);  // WatchdogSec=200ms: feed every 100 ms
+  unsetenv("WATCHDOG_PID");
+  host::SystemdNotifier notifier(millis(999));
+  CHECK(notifier.under_systemd());
+  CHECK(notifier.watchdog_requested());
+  CHECK(notifier.interval() == millis(100));
+
+  ExecutiveSpec spec;
+  spec.tick = millis(1);
+  spec.lanes = {{"control", -1, 0}};
+  spec.tasks = {{"worker", 0, 5, 0, millis(5), OverrunPolicy::kLog}};
+  spec.lane_stall_limit = millis(100);
+  spec.supervisor_period = millis(20);
+  RealClock clock;
+  FaultLog log;
+  SafeStop safe(log);
+  Executive exec(spec, clock, safe);
+  struct Blocker {
+    std::atomic<bool> block{false};
+  } blocker;
+  exec.bind("worker", [](TaskContext&, void* u) {
+    auto& b = *static_cast<Blocker*>(u);
+    // A lane that hangs: sleeps (bounded, 1.5 s) when told to.
+    if (b.block.exchange(false)) std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+    return TaskResult::kOk;
+  }, &blocker);
+  exec.add_watchdog(notifier);
+  exec.start();
+  notifier.ready();
+  listener.collect(std::chrono::milliseconds(700));
+  blocker.block = true;
+  listener.collect(std::chrono::milliseconds(1000), [&] { return safe.done(); });
+  listener.collect(std::chrono::milliseconds(60));  // what was already on its way
+  const std::size_t at_stall = listener.messages.size();
+  listener.collect(std::chrono::milliseconds(500));
+  notifier.stopping();
+  listener.collect(std::chrono::milliseconds(50));
+  exec.stop();
+  unsetenv("NOTIFY_SOCKET");
+  unsetenv("WATCHDOG_USEC");
+
+  const auto& m = listener.messages;
+  REQUIRE(!m.empty());
+  CHECK(m.front().text == "READY=1");
+  std::vector<Nanos> feeds;
+  for (const auto& x : m)
+    if (x.text == "WATCHDOG=1") feeds.push_back(x.time);
+  INFO("WATCHDOG=1 messages: " << feeds.size());
+  CHECK(feeds.size() >= 3);  // ~6 in the first 700 ms on an idle machine
+  // Never faster than the interval (minus the supervisor's own jitter, one period).
+  for (std::size_t i = 1; i < feeds.size(); ++i) CHECK(feeds[i] - feeds[i - 1] >= millis(100) - millis(20));
+  // The stall is seen, the safe stop names the lane, and the watchdog starves.
+  REQUIRE(safe.done());
+  CHECK(safe.reason().code == FaultCode::kLaneStall);
+  CHECK(safe.reason().source.view() == "control");
+  int after_stall = 0;
+  for (std::size_t i = at_stall; i < m.size(); ++i) after_stall += m[i].text == "WATCHDOG=1";
+  CHECK(after_stall == 0);
+  CHECK(m.size() > at_stall);  // STOPPING=1 did arrive: the socket was still being read
+  CHECK(m.back().text == "STOPPING=1");
+}

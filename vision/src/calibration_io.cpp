@@ -1,0 +1,143 @@
+#include "markcell/vision/calibration_io.hpp"
+
+#include <cmath>
+#include <sstream>
+
+#include <opencv2/core/eigen.hpp>
+
+namespace markcell::vision {
+
+namespace {
+
+[[noreturn]] void fail(const std::string& path, const std::string& key, const std::string& what) {
+  throw CalibrationError(path + ": key '" + key + "': " + what);
+}
+
+cv::FileStorage open_for_read(const std::string& path) {
+  cv::FileStorage fs;
+  try {
+    if (!fs.open(path, cv::FileStorage::READ)) throw CalibrationError(path + ": cannot open calibration file");
+  } catch (const cv::Exception& e) {
+    throw CalibrationError(path + ": not an OpenCV FileStorage file: " + e.err);
+  }
+  return fs;
+}
+
+cv::Mat read_matrix(const cv::FileStorage& fs, const std::string& path, const std::string& key, int rows, int cols) {
+  const cv::FileNode node = fs[key];
+  if (node.empty()) fail(path, key, "missing");
+  cv::Mat m;
+  try {
+    node >> m;
+  } catch (const cv::Exception& e) {
+    fail(path, key, "expected a " + std::to_string(rows) + "x" + std::to_string(cols) + " matrix (" + e.err + ")");
+  }
+  if (m.empty() || m.channels() != 1) fail(path, key, "expected a single-channel matrix");
+  if ((rows > 0 && m.rows != rows) || (cols > 0 && m.cols != cols)) {
+    std::ostringstream os;
+    os << "expected a " << (rows > 0 ? std::to_string(rows) : "N") << "x" << (cols > 0 ? std::to_string(cols) : "N")
+       << " matrix, got " << m.rows << "x" << m.cols;
+    fail(path, key, os.str());
+  }
+  m.convertTo(m, CV_64F);
+  for (int r = 0; r < m.rows; ++r)
+    for (int c = 0; c < m.cols; ++c)
+      if (!std::isfinite(m.at<double>(r, c))) fail(path, key, "contains a non-finite value");
+  return m;
+}
+
+int read_positive_int(const cv::FileStorage& fs, const std::string& path, const std::string& key) {
+  const cv::FileNode node = fs[key];
+  if (node.empty()) fail(path, key, "missing");
+  if (!node.isInt()) fail(path, key, "expected an integer");
+  const int v = static_cast<int>(node);
+  if (v <= 0) fail(path, key, "expected a positive integer, got " + std::to_string(v));
+  return v;
+}
+
+Eigen::Matrix3d read_camera_matrix(const cv::FileStorage& fs, const std::string& path, const std::string& key) {
+  Eigen::Matrix3d K;
+  cv::cv2eigen(read_matrix(fs, path, key, 3, 3), K);
+  if (K(0, 0) <= 0 || K(1, 1) <= 0 || K(2, 2) != 1.0 || K(1, 0) != 0 || K(2, 0) != 0 || K(2, 1) != 0)
+    fail(path, key, "not a camera matrix [fx s cx; 0 fy cy; 0 0 1] with fx, fy > 0");
+  return K;
+}
+
+cv::Mat read_distortion(const cv::FileStorage& fs, const std::string& path, const std::string& key) {
+  cv::Mat d = read_matrix(fs, path, key, 0, 0);
+  d = d.reshape(1, 1);
+  const int n = d.cols;
+  if (n != 4 && n != 5 && n != 8 && n != 12 && n != 14)
+    fail(path, key, "expected 4, 5, 8, 12 or 14 distortion coefficients, got " + std::to_string(n));
+  return d;
+}
+
+void check_rotation(const Eigen::Matrix3d& R, const std::string& path, const std::string& key) {
+  const double orthogonality = (R.transpose() * R - Eigen::Matrix3d::Identity()).norm();
+  if (orthogonality > 1e-6 || std::abs(R.determinant() - 1.0) > 1e-6) {
+    std::ostringstream os;
+    os << "not a rotation (|R'R - I| = " << orthogonality << ", det = " << R.determinant() << ")";
+    fail(path, key, os.str());
+  }
+}
+
+}  // namespace
+
+StereoCalibration load_stereo_calibration(const std::string& path) {
+  cv::FileStorage fs = open_for_read(path);
+  StereoCalibration c;
+  const int w = read_positive_int(fs, path, "image_width");
+  const int h = read_positive_int(fs, path, "image_height");
+  c.left.width = c.right.width = w;
+  c.left.height = c.right.height = h;
+  c.left.K = read_camera_matrix(fs, path, "K1");
+  c.right.K = read_camera_matrix(fs, path, "K2");
+  c.left.distortion = read_distortion(fs, path, "D1");
+  c.right.distortion = read_distortion(fs, path, "D2");
+  Eigen::Matrix3d R;
+  Eigen::Vector3d T;
+  cv::cv2eigen(read_matrix(fs, path, "R", 3, 3), R);
+  check_rotation(R, path, "R");
+  cv::Mat t = read_matrix(fs, path, "T", 0, 0);
+  if (t.total() != 3) fail(path, "T", "expected 3 values, got " + std::to_string(t.total()));
+  T << t.at<double>(0), t.at<double>(1), t.at<double>(2);
+  if (T.norm() <= 0) fail(path, "T", "zero baseline");
+  c.X_CamR_CamL.linear() = R;
+  c.X_CamR_CamL.translation() = T;
+  return c;
+}
+
+void save_stereo_calibration(const std::string& path, const StereoCalibration& c) {
+  cv::FileStorage fs(path, cv::FileStorage::WRITE);
+  if (!fs.isOpened()) throw CalibrationError(path + ": cannot open for writing");
+  cv::Mat K1, K2, R, T;
+  cv::eigen2cv(c.left.K, K1);
+  cv::eigen2cv(c.right.K, K2);
+  cv::eigen2cv(Eigen::Matrix3d(c.X_CamR_CamL.linear()), R);
+  cv::eigen2cv(Eigen::Vector3d(c.X_CamR_CamL.translation()), T);
+  fs << "image_width" << c.left.width << "image_height" << c.left.height;
+  fs << "K1" << K1 << "D1" << (c.left.distortion.empty() ? cv::Mat::zeros(1, 5, CV_64F) : c.left.distortion);
+  fs << "K2" << K2 << "D2" << (c.right.distortion.empty() ? cv::Mat::zeros(1, 5, CV_64F) : c.right.distortion);
+  fs << "R" << R << "T" << T;
+}
+
+Eigen::Isometry3d load_pose(const std::string& path, const std::string& key) {
+  cv::FileStorage fs = open_for_read(path);
+  Eigen::Matrix4d m;
+  cv::cv2eigen(read_matrix(fs, path, key, 4, 4), m);
+  if (m.row(3) != Eigen::RowVector4d(0, 0, 0, 1)) fail(path, key, "last row is not [0 0 0 1]");
+  check_rotation(m.topLeftCorner<3, 3>(), path, key);
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.matrix() = m;
+  return X;
+}
+
+void save_pose(const std::string& path, const std::string& key, const Eigen::Isometry3d& pose) {
+  cv::FileStorage fs(path, cv::FileStorage::WRITE);
+  if (!fs.isOpened()) throw CalibrationError(path + ": cannot open for writing");
+  cv::Mat m;
+  cv::eigen2cv(Eigen::Matrix4d(pose.matrix()), m);
+  fs << key << m;
+}
+
+}  // namespace markcell::vision

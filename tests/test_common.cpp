@@ -60,8 +60,12 @@ TEST_CASE("triple buffer: the reader sees the newest complete value, never a tor
   while (!started.load()) std::this_thread::yield();  // the thread's own start-up allocates
   test::AllocationGuard guard;
   go = true;
-  while (!done.load() || buffer.update()) {
-    if (!buffer.update()) continue;
+  for (;;) {
+    const bool finished = done.load();  // read before update(): the last publish is then visible
+    if (!buffer.update()) {
+      if (finished) break;
+      continue;
+    }
     const Pair& p = buffer.read();
     if (p.b != 2 * p.a + 1) ++torn;
     if (p.a < last) ++backwards;

@@ -52,3 +52,16 @@ TEST_CASE("run on the simulated clock prints the timing report") {
   CHECK(r.output.find("plc_io             control        1.000        200      2001") != std::string::npos);
   CHECK(r.output.find("shutdown       markcell         duration elapsed") != std::string::npos);
 }
+
+TEST_CASE("run stops cleanly on SIGTERM and on SIGINT, outputs safe, report printed") {
+  for (const char* sig : {"TERM", "INT"}) {
+    // The shell starts the cell on the real clock, signals it after 0.5 s and reports its exit status.
+    const auto r = run_command("( " + kMarkcell + " run --config " + source_path("config/cell.example.yaml") +
+                               " & pid=$!; sleep 0.5; kill -" + sig + " $pid; wait $pid; echo \"exit=$?\" )");
+    INFO(sig << ": " << r.output);
+    CHECK(r.output.find("exit=0") != std::string::npos);
+    CHECK(r.output.find(std::string("stopped (SIG") + sig + ")") != std::string::npos);
+    CHECK(r.output.find("timing report (real clock)") != std::string::npos);
+    CHECK(r.output.find(std::string("shutdown       markcell         SIG") + sig) != std::string::npos);
+  }
+}

@@ -10,6 +10,7 @@
 
 #include "markcell/control/plc_io.hpp"
 #include "markcell/drivers/gpio.hpp"
+#include "markcell/drivers/gpiod_lines.hpp"
 #include "markcell/drivers/watchdog_device.hpp"
 #include "test_files.hpp"
 
@@ -123,4 +124,13 @@ TEST_CASE("watchdog device: feeds, magic close, and a clear error for a non-watc
                                           "': WDIOC_SETTIMEOUT 10 s (is it a watchdog device?): Inappropriate ioctl for device");
   WatchdogDevice missing({(dir.path() / "none").string(), 0});
   CHECK_THROWS_AS(missing.activate(), std::system_error);
+}
+
+TEST_CASE("libgpiod lines: a chip that is not there is a clear error at configure") {
+  GpiodLines lines("gpiochip-markcell-none");
+  CHECK_THROWS_WITH(lines.configure({{"MC_SPRAY_VALVE", true, false, false}}),
+                    "gpio chip 'gpiochip-markcell-none': cannot open: No such file or directory");
+  CHECK_FALSE(lines.active());
+  CHECK(lines.set(0, true) == GpioStatus::kNotActive);
+  CHECK_THROWS_WITH(lines.activate(), "gpio chip 'gpiochip-markcell-none': activate before configure");
 }

@@ -2,6 +2,8 @@
 
 #include <stdexcept>
 
+#include "markcell/drivers/gpiod_lines.hpp"
+
 namespace markcell::host {
 
 const std::vector<std::string>& task_catalog() {
@@ -28,13 +30,15 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     clock_ = std::make_unique<control::RealClock>();
   }
 
-  if (!config.gpio.simulated)
-    throw std::runtime_error(config.file + ": devices.gpio.simulated: false needs the libgpiod driver, which this build does not have yet");
-  auto gpio = std::make_unique<drivers::SimGpioLines>();
-  sim_gpio_ = gpio.get();
-  if (clock == ClockKind::kSimulated)
-    sim_gpio_->set_time_source([](void* c) { return static_cast<control::SimClock*>(c)->global_now(); }, sim_clock_);
-  gpio_ = std::move(gpio);
+  if (config.gpio.simulated) {
+    auto gpio = std::make_unique<drivers::SimGpioLines>();
+    sim_gpio_ = gpio.get();
+    if (clock == ClockKind::kSimulated)
+      sim_gpio_->set_time_source([](void* c) { return static_cast<control::SimClock*>(c)->global_now(); }, sim_clock_);
+    gpio_ = std::move(gpio);
+  } else {
+    gpio_ = std::make_unique<drivers::GpiodLines>(config.gpio.chip);
+  }
   std::vector<drivers::LineRequest> requests;
   for (std::size_t i = 0; i < kLineRoleCount; ++i) {
     const auto role = static_cast<LineRole>(i);

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <limits>
 #include <optional>
 #include <sstream>
@@ -519,17 +520,36 @@ std::vector<ConfigError> check_config(const std::string& path, const std::vector
 }
 
 CellConfig load_config(const std::string& path, const std::vector<std::string>& known_tasks) {
+  std::ifstream in(path);
+  if (!in) throw ConfigInvalid({ConfigError{path, 0, 0, "", "cannot open the file"}});
+  std::stringstream text;
+  text << in.rdbuf();
+  return load_config_text(text.str(), path, known_tasks);
+}
+
+std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
+                                           const std::vector<std::string>& known_tasks) {
+  std::vector<ConfigError> errors;
+  try {
+    load_config_text(text, path, known_tasks);
+  } catch (const ConfigInvalid& e) {
+    errors = e.errors();
+  }
+  return errors;
+}
+
+CellConfig load_config_text(const std::string& text, const std::string& path, const std::vector<std::string>& known_tasks) {
   std::vector<ConfigError> errors;
   Reader r(path, errors);
   CellConfig cfg;
   cfg.file = path;
   YAML::Node root;
   try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    throw ConfigInvalid({ConfigError{path, 0, 0, "", "cannot open the file"}});
+    root = YAML::Load(text);
   } catch (const YAML::ParserException& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML syntax: " + e.msg}});
+  } catch (const YAML::Exception& e) {
+    throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML: " + e.msg}});
   }
   if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "devices", "calibration", "panel_types"}))
     throw ConfigInvalid(errors);

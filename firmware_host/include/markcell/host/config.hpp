@@ -137,6 +137,11 @@ struct CellConfig {
 // Validates and loads; throws ConfigInvalid with every error found. `known_tasks`: the
 // tasks this build of markcell provides (a configured task must be one of them).
 CellConfig load_config(const std::string& path, const std::vector<std::string>& known_tasks);
+// The same from text already in memory; `path` names it in messages and is where
+// relative calibration paths are resolved from.
+CellConfig load_config_text(const std::string& text, const std::string& path, const std::vector<std::string>& known_tasks);
+std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
+                                           const std::vector<std::string>& known_tasks);
 // Same checks, returning the errors instead of throwing (empty: valid).
 std::vector<ConfigError> check_config(const std::string& path, const std::vector<std::string>& known_tasks);
 

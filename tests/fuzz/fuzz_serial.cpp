@@ -1,0 +1,42 @@
+// libFuzzer target: the arm's serial protocol decoder and payload decoders on arbitrary
+// bytes, delivered in arbitrary chunks. Crashes, sanitizer reports and broken invariants
+// (a frame longer than the maximum, a decoded pose that is not finite) are findings.
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+
+#include "markcell/drivers/serial_protocol.hpp"
+
+using namespace markcell::drivers;
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  serial::Decoder decoder;
+  std::size_t at = 0;
+  while (at < size) {
+    // The first byte of each chunk says how long the chunk is: arbitrary fragmentation.
+    const std::size_t chunk = std::min<std::size_t>(size - at, 1 + data[at] % 40);
+    std::span<const std::uint8_t> in(data + at, chunk);
+    at += chunk;
+    for (int guard = 0; !in.empty() && guard < 1000; ++guard) {
+      in = in.subspan(decoder.push(in));
+      serial::Frame f;
+      for (int n = 0; n < 1000; ++n) {
+        const auto r = decoder.next(f);
+        if (r == serial::Decoder::Result::kNeedMore) break;
+        if (r != serial::Decoder::Result::kFrame) continue;
+        if (f.length > serial::kMaxPayload) std::abort();
+        ArmCommand c;
+        if (serial::decode_command(f, c) == serial::PayloadError::kOk)
+          for (double v : c.target.position) if (!std::isfinite(v)) std::abort();
+        ArmState s;
+        markcell::Nanos t = 0;
+        if (serial::decode_state(f, s, t) == serial::PayloadError::kOk)
+          for (double v : s.tool.rotation) if (!std::isfinite(v)) std::abort();
+        std::uint8_t seq = 0;
+        serial::AckResult result{};
+        (void)serial::decode_ack(f, seq, result);
+      }
+    }
+  }
+  return 0;
+}

@@ -1,0 +1,133 @@
+#pragma once
+// Cameras: one interface, the GigE Vision one through Aravis, and the stereo pairing of
+// two of them.
+//
+// A camera is opened by its Aravis device id or by its IP address, set to Mono8 at the
+// configured size, frame rate, exposure and gain, and triggered either by software or
+// by a hardware line (both cameras on the same trigger line expose at the same
+// instant). Frames come from a pool of buffers allocated at activation; next() hands
+// out one frame at a time and takes the previous one back. Lost and incomplete frames
+// are counted, and a camera that stops delivering is reported as lost.
+#include <atomic>
+#include <cstdint>
+#include <string>
+
+#include "markcell/common/time.hpp"
+
+namespace markcell::drivers {
+
+enum class TriggerMode : std::uint8_t { kSoftware, kHardware };
+
+struct CameraSettings {
+  std::string id;                  // Aravis device id, or an IP address
+  int width = 640;
+  int height = 480;
+  double fps = 30.0;               // acquisition rate (free running) or expected trigger rate
+  double exposure_us = 4000.0;
+  double gain_db = 0.0;
+  TriggerMode trigger = TriggerMode::kHardware;
+  std::string trigger_line = "Line0";
+  int buffers = 8;
+};
+
+struct FrameView {
+  const std::uint8_t* pixels = nullptr;  // Mono8, row-major
+  int width = 0;
+  int height = 0;
+  int stride = 0;                        // bytes per row
+  Nanos time = 0;                        // CLOCK_MONOTONIC, when the frame arrived
+  Nanos device_time = 0;                 // the camera's own timestamp
+  std::uint64_t frame_id = 0;
+};
+
+enum class FrameStatus : std::uint8_t { kFrame, kTimeout, kIncomplete, kCameraLost, kNotActive };
+
+struct CameraCounters {
+  std::uint64_t frames = 0;
+  std::uint64_t incomplete = 0;   // a buffer that arrived with missing packets or the wrong size
+  std::uint64_t lost = 0;         // frames the stream reports as failed
+  std::uint64_t underruns = 0;    // no buffer free when a frame came
+  std::uint64_t timeouts = 0;
+};
+
+class Camera {
+ public:
+  virtual ~Camera() = default;
+  virtual void activate() = 0;      // opens, configures, allocates the buffer pool; throws naming the camera
+  virtual void deactivate() noexcept = 0;
+  virtual bool active() const = 0;
+  virtual bool lost() const = 0;    // the camera went away (control channel lost)
+  virtual const std::string& id() const = 0;
+  virtual bool software_trigger() noexcept = 0;
+  // Waits at most `timeout` for the next frame. The view stays valid until the next
+  // call (the buffer goes back to the pool then).
+  virtual FrameStatus next(FrameView& frame, Nanos timeout) noexcept = 0;
+  virtual CameraCounters counters() const = 0;
+};
+
+class AravisCamera final : public Camera {
+ public:
+  explicit AravisCamera(CameraSettings settings);
+  ~AravisCamera() override;
+  void activate() override;
+  void deactivate() noexcept override;
+  bool active() const override { return camera_ != nullptr; }
+  bool lost() const override { return control_lost_.load(std::memory_order_acquire); }
+  const std::string& id() const override { return settings_.id; }
+  bool software_trigger() noexcept override;
+  FrameStatus next(FrameView& frame, Nanos timeout) noexcept override;
+  CameraCounters counters() const override;
+  // Off the real-time path: closes and opens the camera again. Returns false (with the
+  // reason in `why`) while it is still unreachable.
+  bool reconnect(std::string& why) noexcept;
+
+ private:
+  void release_held() noexcept;
+  CameraSettings settings_;
+  void* camera_ = nullptr;  // ArvCamera*
+  void* stream_ = nullptr;  // ArvStream*
+  void* held_ = nullptr;    // ArvBuffer* handed out by next()
+  unsigned long control_lost_handler_ = 0;
+  std::atomic<bool> control_lost_{false};
+  CameraCounters counters_;
+};
+
+// Two cameras as one stereo pair: frames are paired by their arrival times; a frame
+// with no partner within the tolerance is dropped and counted; a camera that delivers
+// nothing for `silence` is reported.
+struct StereoFrame {
+  FrameView left;
+  FrameView right;
+  Nanos time = 0;  // the later of the two
+  std::uint64_t index = 0;
+};
+
+enum class PairStatus : std::uint8_t { kPair, kTimeout, kLeftLost, kRightLost };
+
+struct StereoCounters {
+  std::uint64_t pairs = 0;
+  std::uint64_t unpaired_left = 0;
+  std::uint64_t unpaired_right = 0;
+};
+
+class StereoCamera {
+ public:
+  StereoCamera(Camera& left, Camera& right, Nanos pair_tolerance, Nanos silence);
+  // Both software triggers (software trigger mode; with a hardware line the PLC or the
+  // camera-trigger GPIO fires both).
+  bool trigger() noexcept;
+  PairStatus next(StereoFrame& out, Nanos timeout) noexcept;
+  const StereoCounters& counters() const { return counters_; }
+
+ private:
+  Camera& left_;
+  Camera& right_;
+  Nanos tolerance_;
+  Nanos silence_;
+  Nanos last_left_ = 0, last_right_ = 0;
+  bool have_left_ = false, have_right_ = false;
+  FrameView pending_left_, pending_right_;
+  StereoCounters counters_;
+};
+
+}  // namespace markcell::drivers

@@ -24,6 +24,9 @@ executive:
     control: {core: -1, priority: 0}
   tasks:
     plc_io: {lane: control, period_us: 1000, budget_us: 200, on_overrun: safe_stop}
+    arm_link: {lane: control, period_us: 1000, budget_us: 200}
+    spray_valve: {lane: control, period_us: 1000, budget_us: 100}
+    sim_world: {lane: control, period_us: 1000, budget_us: 300}
 watchdog:
   systemd: true
   device: {enabled: false, path: /dev/watchdog, timeout_s: 10}
@@ -42,13 +45,14 @@ devices:
       plc_busy: {line: B}
       plc_done: {line: D}
       plc_fault: {line: F}
-  arm: {transport: simulated}
+  arm: {transport: simulated, limits: {reach_m: 1.6, max_tcp_speed_m_s: 1, max_tcp_accel_m_s2: 4, home_m: [0.3, 0, 0.6]}}
   cameras: {source: simulated, width: 640, height: 480, fps: 30, exposure_us: 4000, trigger: hardware}
 calibration:
   stereo: stereo.yaml
   base: base.yaml
 panel_types:
   door: {macro_features: 10}
+spray: {pulse_ms: 80, min_pulse_ms: 5, max_pulse_ms: 500}
 )";
 
 struct Fixture {
@@ -83,7 +87,7 @@ TEST_CASE("the example configuration loads") {
   CHECK(cfg.executive.tick == millis(1));
   REQUIRE(cfg.executive.lanes.size() == 1);
   CHECK(cfg.executive.lanes[0].priority == 80);
-  REQUIRE(cfg.executive.tasks.size() == 1);
+  REQUIRE(cfg.executive.tasks.size() == 4);
   CHECK(cfg.executive.tasks[0].budget == micros(200));
   CHECK(cfg.executive.tasks[0].overrun == control::OverrunPolicy::kSafeStop);
   CHECK(cfg.gpio.lines[static_cast<std::size_t>(LineRole::kPlcEstop)].active_low);
@@ -112,7 +116,7 @@ TEST_CASE_METHOD(Fixture, "wrong types name what was expected and what was found
   const auto e = check(replace(replace(kValid, "base_tick_us: 1000", "base_tick_us: fast"), "systemd: true", "systemd: [1]"));
   REQUIRE(e.size() >= 2);
   CHECK(e[0].to_string() == file() + ":4:17: executive.base_tick_us: expected an integer in [50, 1000000], got \"fast\"");
-  CHECK(e.back().to_string() == file() + ":12:12: watchdog.systemd: expected true or false, got a sequence");
+  CHECK(e.back().to_string() == file() + ":15:12: watchdog.systemd: expected true or false, got a sequence");
 }
 
 TEST_CASE_METHOD(Fixture, "out-of-range values") {
@@ -140,7 +144,7 @@ TEST_CASE_METHOD(Fixture, "references to undeclared lanes and unknown tasks") {
   const auto m = messages(e);
   for (const auto& x : m) UNSCOPED_INFO(x);
   REQUIRE(m.size() == 2);
-  CHECK(m[0] == file() + ":10:5: executive.tasks.vision_track: unknown task 'vision_track' (markcell provides: plc_io)");
+  CHECK(m[0] == file() + ":10:5: executive.tasks.vision_track: unknown task 'vision_track' (markcell provides: plc_io, spray_valve, arm_link, sim_world)");
   CHECK(m[1] == file() + ":10:26: executive.tasks.vision_track.lane: lane 'vison' is not declared in executive.lanes "
                          "(declared: control)");
 }
@@ -152,7 +156,7 @@ TEST_CASE_METHOD(Fixture, "inconsistent values across sections") {
   REQUIRE(m.size() == 2);
   CHECK(m[0] == file() + ":6:25: executive.supervisor_period_ms: supervisor_period_ms 10 must be at most half of "
                          "lane_stall_ms 15, or a stall could go unseen for too long");
-  CHECK(m[1] == file() + ":27:24: devices.gpio.lines.plc_done.line: line 'B' is already used by plc_busy (each role "
+  CHECK(m[1] == file() + ":30:24: devices.gpio.lines.plc_done.line: line 'B' is already used by plc_busy (each role "
                          "needs its own line)");
 }
 
@@ -163,10 +167,27 @@ TEST_CASE_METHOD(Fixture, "missing files and malformed calibration files") {
                             "base: calib/nowhere.yaml");
   const auto m = messages(check(text));
   REQUIRE(m.size() == 2);
-  CHECK(m[0] == file() + ":33:9: calibration.base: file 'calib/nowhere.yaml' not found (looked for " +
+  CHECK(m[0] == file() + ":36:9: calibration.base: file 'calib/nowhere.yaml' not found (looked for " +
                     (dir.path() / "calib/nowhere.yaml").string() + ")");
-  CHECK(m[1] == file() + ":32:11: calibration.stereo: " + (dir.path() / "bad_stereo.yaml").string() +
+  CHECK(m[1] == file() + ":35:11: calibration.stereo: " + (dir.path() / "bad_stereo.yaml").string() +
                     ": key 'K1': expected a 3x3 matrix, got 3x4");
+}
+
+TEST_CASE_METHOD(Fixture, "simulated devices and the tasks that run them go together") {
+  auto m = messages(check(replace(kValid, "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n", "")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":10:5: executive.tasks: devices.arm.transport is simulated: the sim_world task must be in the table");
+  m = messages(check(replace(kValid, "transport: simulated, limits", "transport: serial, serial: {device: /dev/ttyS1, baud: 115200, "
+                                                                      "ack_timeout_ms: 20, retries: 3}, limits")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":13:16: executive.tasks.sim_world: no device is simulated: remove sim_world");
+}
+
+TEST_CASE_METHOD(Fixture, "spray pulse and arm limits are checked against each other") {
+  auto m = messages(check(replace(replace(kValid, "pulse_ms: 80", "pulse_ms: 800"), "home_m: [0.3, 0, 0.6]", "home_m: [2, 0, 0.6]")));
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":39:19: spray.pulse_ms: pulse_ms 800 is outside [min_pulse_ms, max_pulse_ms] = [5, 500]");
+  CHECK(m[1] == file() + ":32:107: devices.arm.limits.home_m: home is beyond reach_m");
 }
 
 TEST_CASE_METHOD(Fixture, "YAML syntax errors carry their position") {

@@ -119,8 +119,14 @@ ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
   return status_;
 }
 
-SimCanArm::SimCanArm(CanBus& bus, std::uint8_t node, SimArmLimits limits, Nanos state_period, Nanos heartbeat_period)
-    : bus_(bus), node_(node), model_(limits), state_period_(state_period), heartbeat_period_(heartbeat_period) {}
+SimCanArm::SimCanArm(CanBus& bus, std::uint8_t node, SimArmLimits limits, Nanos state_period, Nanos heartbeat_period,
+                     Nanos master_timeout)
+    : bus_(bus),
+      node_(node),
+      model_(limits),
+      state_period_(state_period),
+      heartbeat_period_(heartbeat_period),
+      master_timeout_(master_timeout) {}
 
 void SimCanArm::start(Nanos now) {
   if (!bus_.is_open()) bus_.open();
@@ -172,6 +178,13 @@ void SimCanArm::poll(Nanos now) {
           partial_.time = true;
           partial_.command.time = static_cast<Nanos>(m.time_us) * kNanosPerMicro;
           break;
+        case Kind::kHeartbeat:
+          if (m.node != node_ && m.nmt_state == NmtState::kOperational) {
+            master_seen_ = true;
+            master_lost_ = false;
+            last_master_ = now;
+          }
+          break;
         case Kind::kSync:
           if (nmt_ == NmtState::kOperational && partial_.position && partial_.rotation && partial_.time) {
             const auto result = model_.submit(partial_.command, partial_.seq, now);
@@ -185,6 +198,15 @@ void SimCanArm::poll(Nanos now) {
           break;
       }
     }
+  }
+  if (master_seen_ && !master_lost_ && now - last_master_ > master_timeout_) {
+    // The master went quiet: hold where we are until it speaks again.
+    ArmCommand hold;
+    hold.mode = ArmMode::kHold;
+    hold.target = model_.tool();
+    model_.submit(hold, last_seq_, now);
+    master_lost_ = true;
+    ++master_losses_;
   }
   model_.step(now);
   if (silent_) return;

@@ -17,7 +17,7 @@ void SimGpioLines::configure(const std::vector<LineRequest>& requests) {
   }
   requests_ = requests;
   // Inputs rest at their inactive physical level until driven.
-  for (std::size_t i = 0; i < requests_.size(); ++i) physical_[i] = requests_[i].active_low;
+  for (std::size_t i = 0; i < requests_.size(); ++i) physical_[i].store(requests_[i].active_low);
 }
 
 void SimGpioLines::activate() {
@@ -40,11 +40,8 @@ int SimGpioLines::find(const std::string& name) const {
 }
 
 void SimGpioLines::record_output(int line, bool active) noexcept {
-  if (history_count_ == kHistory) {
-    ++history_dropped_;
-    return;
-  }
-  history_[history_count_++] = Edge{line, active, stamp()};
+  const std::size_t slot = history_count_.fetch_add(1, std::memory_order_acq_rel);
+  if (slot < kHistory) history_[slot] = Edge{line, active, stamp()};
 }
 
 GpioStatus SimGpioLines::set(int line, bool active) noexcept {
@@ -53,25 +50,21 @@ GpioStatus SimGpioLines::set(int line, bool active) noexcept {
   const LineRequest& r = requests_[static_cast<std::size_t>(line)];
   if (!r.output) return GpioStatus::kWrongDirection;
   const bool high = active != r.active_low;
-  if (physical_[static_cast<std::size_t>(line)] != high) {
-    physical_[static_cast<std::size_t>(line)] = high;
-    record_output(line, active);
-  }
+  if (physical_[static_cast<std::size_t>(line)].exchange(high, std::memory_order_acq_rel) != high) record_output(line, active);
   return GpioStatus::kOk;
 }
 
 GpioStatus SimGpioLines::get(int line, bool& active) noexcept {
   if (!active_) return GpioStatus::kNotActive;
   if (line < 0 || static_cast<std::size_t>(line) >= requests_.size()) return GpioStatus::kBadLine;
-  active = physical_[static_cast<std::size_t>(line)] != requests_[static_cast<std::size_t>(line)].active_low;
+  active = physical_[static_cast<std::size_t>(line)].load(std::memory_order_acquire) != requests_[static_cast<std::size_t>(line)].active_low;
   return GpioStatus::kOk;
 }
 
 void SimGpioLines::drive_physical(int line, bool high) noexcept {
   if (line < 0 || static_cast<std::size_t>(line) >= requests_.size()) return;
   const LineRequest& r = requests_[static_cast<std::size_t>(line)];
-  if (r.output || physical_[static_cast<std::size_t>(line)] == high) return;
-  physical_[static_cast<std::size_t>(line)] = high;
+  if (r.output || physical_[static_cast<std::size_t>(line)].exchange(high) == high) return;
   if (!active_) return;
   if (pending_count_ == pending_.size()) {  // overflow: the oldest edge goes, as a kernel FIFO does
     pending_head_ = (pending_head_ + 1) % pending_.size();

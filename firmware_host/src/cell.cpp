@@ -8,9 +8,24 @@ namespace markcell::host {
 
 const std::vector<std::string>& task_catalog() {
   static const std::vector<std::string> kTasks = {
-      "plc_io",  // PLC handshake lines, e-stop -> safe stop (control lane)
+      "plc_io",       // PLC handshake lines, e-stop -> safe stop (control lane)
+      "spray_valve",  // opens and closes the valve on the tick (control lane)
+      "arm_link",     // polls the arm link, link faults -> safe stop, holds the arm on a stop
+      "sim_world",    // advances the simulated devices (only with simulated devices)
   };
   return kTasks;
+}
+
+namespace {
+drivers::CanArmLinkConfig can_link_config(const CanConfig& c) {
+  return drivers::CanArmLinkConfig{static_cast<std::uint8_t>(c.node_id), static_cast<std::uint8_t>(c.controller_node_id),
+                                   c.heartbeat_period, c.heartbeat_timeout};
+}
+}  // namespace
+
+control::TaskResult Cell::SimWorld::task(control::TaskContext& ctx, void* self) {
+  static_cast<SimWorld*>(self)->arm->poll(ctx.now());
+  return control::TaskResult::kOk;
 }
 
 struct Cell::DeviceWatchdogSink final : control::WatchdogSink {
@@ -59,9 +74,54 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
   map.fault = gpio_line(LineRole::kPlcFault);
   plc_io_ = std::make_unique<control::PlcIo>(*gpio_, map, safe_stop_);
 
+  spray_valve_ = std::make_unique<control::SprayValve>(*gpio_, gpio_line(LineRole::kSprayValve), config.spray.min_pulse,
+                                                       config.spray.max_pulse);
+
+  // The arm link. A simulated arm is a CAN node on an in-memory wire, so the real CAN
+  // codec and link state machine run in the simulated cell too.
+  switch (config.arm.transport) {
+    case ArmTransport::kSimulated: {
+      sim_world_ = std::make_unique<SimWorld>();
+      if (sim_clock_ != nullptr)
+        sim_world_->wire.set_time_source([](void* c) { return static_cast<control::SimClock*>(c)->global_now(); }, sim_clock_);
+      drivers::SimArmLimits limits;
+      limits.reach = config.arm.limits.reach;
+      limits.max_speed = config.arm.limits.max_tcp_speed;
+      limits.max_accel = config.arm.limits.max_tcp_accel;
+      limits.home.position = config.arm.limits.home;
+      sim_world_->arm = std::make_unique<drivers::SimCanArm>(
+          sim_world_->wire.b(), static_cast<std::uint8_t>(config.arm.can.node_id), limits, millis(10),
+          config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout);
+      arm_link_ = std::make_unique<drivers::CanArmLink>(sim_world_->wire.a(), can_link_config(config.arm.can));
+      break;
+    }
+    case ArmTransport::kCan: {
+      drivers::SocketCanConfig bus;
+      bus.interface = config.arm.can.interface;
+      bus.fd = config.arm.can.fd;
+      const auto node = static_cast<std::uint32_t>(config.arm.can.node_id);
+      bus.filter_ids = {drivers::canopen::kToolPositionId + node, drivers::canopen::kToolRotationId + node,
+                        drivers::canopen::kHeartbeatId + node};
+      bus.filter_count = 3;
+      can_bus_ = std::make_unique<drivers::SocketCanBus>(bus);
+      arm_link_ = std::make_unique<drivers::CanArmLink>(*can_bus_, can_link_config(config.arm.can));
+      break;
+    }
+    case ArmTransport::kSerial:
+      arm_link_ = std::make_unique<drivers::SerialArmLink>(drivers::SerialArmLinkConfig{
+          config.arm.serial.device, config.arm.serial.baud, config.arm.serial.ack_timeout, config.arm.serial.retries,
+          config.arm.can.heartbeat_timeout});
+      break;
+  }
+  arm_supervision_ = std::make_unique<control::ArmSupervision>(*arm_link_, safe_stop_,
+                                                               config.safe_stop.arm == ArmSafeAction::kHome);
+
   executive_ = std::make_unique<control::Executive>(config.executive, *clock_, safe_stop_);
   for (const auto& task : config.executive.tasks) {
     if (task.name == "plc_io") executive_->bind(task.name, &control::PlcIo::task, plc_io_.get());
+    else if (task.name == "spray_valve") executive_->bind(task.name, &control::SprayValve::task, spray_valve_.get());
+    else if (task.name == "arm_link") executive_->bind(task.name, &control::ArmSupervision::task, arm_supervision_.get());
+    else if (task.name == "sim_world" && sim_world_) executive_->bind(task.name, &SimWorld::task, sim_world_.get());
     else throw std::logic_error("task '" + task.name + "' passed validation but has no binding");
   }
   if (config.watchdog.systemd) executive_->add_watchdog(notifier_);
@@ -88,6 +148,8 @@ void Cell::start() {
     sim_gpio_->drive_physical(estop, config_.gpio.lines[static_cast<std::size_t>(estop)].active_low);
   }
   if (watchdog_device_) watchdog_device_->activate();
+  if (sim_world_) sim_world_->arm->start(clock_->now(0));
+  arm_link_->activate(clock_->now(0));
   executive_->start();
   started_ = true;
   if (config_.watchdog.systemd) notifier_.ready();
@@ -99,6 +161,7 @@ void Cell::shutdown(control::FaultCode code, std::string_view source, std::strin
   if (config_.watchdog.systemd) notifier_.stopping();
   safe_stop_.trigger(clock_->now(0), code, source, detail);
   executive_->stop();
+  arm_link_->deactivate();
   gpio_->deactivate();
   if (watchdog_device_) watchdog_device_->deactivate();
 }

@@ -229,6 +229,28 @@ class Reader {
     error(*n, join_path(path, key), "expected one of: " + join(names) + ", got " + node_kind(*n));
   }
 
+  void vec3(const YAML::Node& parent, const std::string& path, const std::string& key, std::array<double, 3>& out,
+            double lo, double hi, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    std::ostringstream expected;
+    expected << "expected a sequence of 3 numbers in [" << lo << ", " << hi << "]";
+    if (!n->IsSequence() || n->size() != 3) {
+      error(*n, p, expected.str() + ", got " + node_kind(*n));
+      return;
+    }
+    std::array<double, 3> v{};
+    for (std::size_t i = 0; i < 3; ++i) {
+      const YAML::Node e = (*n)[i];
+      if (!e.IsScalar() || !YAML::convert<double>::decode(e, v[i]) || !std::isfinite(v[i]) || v[i] < lo || v[i] > hi) {
+        error(e, p + "[" + std::to_string(i) + "]", expected.str() + ", got " + node_kind(e));
+        return;
+      }
+    }
+    out = v;
+  }
+
   // A file path, resolved against the config file's folder; it must exist.
   void existing_file(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out) {
     std::string raw;
@@ -407,7 +429,18 @@ void read_gpio(Reader& r, const YAML::Node& node, GpioConfig& g) {
 
 void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
   const std::string P = "devices.arm";
-  if (!r.map(node, P, {"transport", "can", "serial"})) return;
+  if (!r.map(node, P, {"transport", "can", "serial", "limits"})) return;
+  if (const auto l = r.child(node, P, "limits", true);
+      l && r.map(*l, P + ".limits", {"reach_m", "max_tcp_speed_m_s", "max_tcp_accel_m_s2", "home_m"})) {
+    const std::string LP = P + ".limits";
+    r.number(*l, LP, "reach_m", a.limits.reach, 0.1, 5.0);
+    r.number(*l, LP, "max_tcp_speed_m_s", a.limits.max_tcp_speed, 0.01, 10.0);
+    r.number(*l, LP, "max_tcp_accel_m_s2", a.limits.max_tcp_accel, 0.01, 100.0);
+    r.vec3(*l, LP, "home_m", a.limits.home, -5.0, 5.0);
+    const auto& h = a.limits.home;
+    if (std::sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]) > a.limits.reach)
+      r.error((*l)["home_m"], LP + ".home_m", "home is beyond reach_m");
+  }
   r.choice(node, P, "transport", a.transport,
            {{"simulated", ArmTransport::kSimulated}, {"can", ArmTransport::kCan}, {"serial", ArmTransport::kSerial}});
   if (const auto c = r.child(node, P, "can", a.transport == ArmTransport::kCan);
@@ -551,7 +584,7 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   } catch (const YAML::Exception& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML: " + e.msg}});
   }
-  if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "devices", "calibration", "panel_types"}))
+  if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "spray", "devices", "calibration", "panel_types"}))
     throw ConfigInvalid(errors);
 
   if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name"}))
@@ -563,6 +596,18 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
     r.choice(*s, "safe_stop", "arm", cfg.safe_stop.arm, {{"hold", ArmSafeAction::kHold}, {"home", ArmSafeAction::kHome}});
     r.boolean(*s, "safe_stop", "plc_fault_line", cfg.safe_stop.plc_fault_line);
   }
+  if (const auto sp = r.child(root, "", "spray", true);
+      sp && r.map(*sp, "spray", {"pulse_ms", "min_pulse_ms", "max_pulse_ms"})) {
+    long long pulse = 80, lo = 5, hi = 500;
+    r.integer(*sp, "spray", "pulse_ms", pulse, 1, 10'000);
+    r.integer(*sp, "spray", "min_pulse_ms", lo, 1, 10'000);
+    r.integer(*sp, "spray", "max_pulse_ms", hi, 1, 10'000);
+    if (pulse < lo || pulse > hi)
+      r.error((*sp)["pulse_ms"], "spray.pulse_ms",
+              "pulse_ms " + std::to_string(pulse) + " is outside [min_pulse_ms, max_pulse_ms] = [" + std::to_string(lo) +
+                  ", " + std::to_string(hi) + "]");
+    cfg.spray = SprayConfig{millis(pulse), millis(lo), millis(hi)};
+  }
   if (const auto d = r.child(root, "", "devices", true); d && r.map(*d, "devices", {"gpio", "arm", "cameras"})) {
     if (const auto g = r.child(*d, "devices", "gpio", true)) read_gpio(r, *g, cfg.gpio);
     if (const auto a = r.child(*d, "devices", "arm", true)) read_arm(r, *a, cfg.arm);
@@ -571,6 +616,20 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   if (const auto c = r.child(root, "", "calibration", true)) read_calibration(r, *c, cfg);
   if (const auto p = r.child(root, "", "panel_types", true)) read_panel_types(r, *p, cfg);
 
+  // Simulated devices are advanced by the sim_world task: one without the other is a
+  // configuration that cannot run.
+  if (const auto tasks = root["executive"]["tasks"]; tasks.IsMap()) {
+    const bool has_world = tasks["sim_world"].IsDefined();
+    const bool simulated = cfg.arm.transport == ArmTransport::kSimulated;
+    if (simulated && !has_world)
+      r.error(tasks, "executive.tasks", "devices.arm.transport is simulated: the sim_world task must be in the table");
+    if (!simulated && has_world)
+      r.error(tasks["sim_world"], "executive.tasks.sim_world", "no device is simulated: remove sim_world");
+    if (!tasks["spray_valve"].IsDefined())
+      r.error(tasks, "executive.tasks", "the spray_valve task must be in the table (it times the valve)");
+    if (!tasks["arm_link"].IsDefined())
+      r.error(tasks, "executive.tasks", "the arm_link task must be in the table (it supervises the arm)");
+  }
   if (!errors.empty()) throw ConfigInvalid(std::move(errors));
   // The loader has checked everything the executive checks; this is the last line of
   // defence and must agree.

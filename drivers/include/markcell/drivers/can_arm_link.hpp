@@ -57,17 +57,19 @@ class CanArmLink final : public ArmLink {
 };
 
 // The arm's end of the CAN bus: an NMT slave with heartbeat, RPDOs applied at SYNC, and
-// TPDOs of its state.
+// TPDOs of its state. Like a real arm controller it consumes the master's heartbeat:
+// when markcell's heartbeat stops for `master_timeout`, the arm holds where it is.
 class SimCanArm {
  public:
   SimCanArm(CanBus& bus, std::uint8_t node, SimArmLimits limits, Nanos state_period = millis(10),
-            Nanos heartbeat_period = millis(50));
+            Nanos heartbeat_period = millis(50), Nanos master_timeout = millis(200));
   void start(Nanos now);  // power-up: boot-up heartbeat, pre-operational
   void poll(Nanos now);
   SimArmModel& model() { return model_; }
   canopen::NmtState nmt_state() const { return nmt_; }
   void set_silent(bool silent) { silent_ = silent; }  // no heartbeat, no TPDOs
   std::uint64_t set_points_applied() const { return applied_; }
+  std::uint64_t master_losses() const { return master_losses_; }
   std::uint64_t decode_errors() const { return decode_errors_; }
 
  private:
@@ -78,6 +80,11 @@ class SimCanArm {
   Nanos heartbeat_period_;
   Nanos next_state_ = 0;
   Nanos next_heartbeat_ = 0;
+  Nanos master_timeout_;
+  Nanos last_master_ = 0;
+  bool master_seen_ = false;
+  bool master_lost_ = false;
+  std::uint64_t master_losses_ = 0;
   canopen::NmtState nmt_ = canopen::NmtState::kBootUp;
   bool silent_ = false;
   struct Partial {

@@ -7,6 +7,7 @@
 // activate (take the lines; outputs start in their safe state), deactivate (outputs back
 // to their safe state, lines released). After activate nothing allocates.
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -54,6 +55,9 @@ class GpioLines {
 // The simulated twin: the same contract, with the far side of every line reachable so
 // the rig (and tests) can drive the PLC inputs and see what the cell drives. Physical
 // levels are kept as on a wire: active-low lines read inverted, as on the real chip.
+// Like the kernel's line handles, set/get may be called from any lane (a safe stop
+// triggered by the supervisor drives the outputs from its own lane): levels are atomic
+// and the output history is claimed slot by slot.
 class SimGpioLines final : public GpioLines {
  public:
   static constexpr std::size_t kHistory = 4096;  // recorded output edges
@@ -72,24 +76,30 @@ class SimGpioLines final : public GpioLines {
   void set_time_source(Nanos (*now)(void*), void* user) { now_ = now; now_user_ = user; }
   // Drives an input's physical level as a PLC would (true = high).
   void drive_physical(int line, bool high) noexcept;
-  bool physical(int line) const { return physical_[static_cast<std::size_t>(line)]; }
+  bool physical(int line) const { return physical_[static_cast<std::size_t>(line)].load(std::memory_order_acquire); }
   int find(const std::string& name) const;  // request index, -1 when unknown
   // Output edges (logical levels), oldest first; history beyond kHistory is counted.
   struct Edge { int line; bool active; Nanos time; };
-  std::span<const Edge> output_history() const { return {history_.data(), history_count_}; }
-  std::size_t history_dropped() const { return history_dropped_; }
+  std::span<const Edge> output_history() const {
+    const std::size_t n = history_count_.load(std::memory_order_acquire);
+    return {history_.data(), n < kHistory ? n : kHistory};
+  }
+  std::size_t history_dropped() const {
+    const std::size_t n = history_count_.load(std::memory_order_acquire);
+    return n > kHistory ? n - kHistory : 0;
+  }
 
  private:
   Nanos stamp() const { return now_ != nullptr ? now_(now_user_) : monotonic_now(); }
   void record_output(int line, bool active) noexcept;
 
   std::vector<LineRequest> requests_;
-  std::array<bool, kMaxGpioLines> physical_{};
+  std::array<std::atomic<bool>, kMaxGpioLines> physical_{};
   bool active_ = false;
   std::array<LineEvent, 256> pending_{};
   std::size_t pending_head_ = 0, pending_count_ = 0;
   std::array<Edge, kHistory> history_{};
-  std::size_t history_count_ = 0, history_dropped_ = 0;
+  std::atomic<std::size_t> history_count_{0};
   Nanos (*now_)(void*) = nullptr;
   void* now_user_ = nullptr;
 };

@@ -9,7 +9,11 @@
 #include "markcell/control/exec_clock.hpp"
 #include "markcell/control/executive.hpp"
 #include "markcell/control/faults.hpp"
+#include "markcell/control/arm_supervision.hpp"
 #include "markcell/control/plc_io.hpp"
+#include "markcell/control/spray_valve.hpp"
+#include "markcell/drivers/can_arm_link.hpp"
+#include "markcell/drivers/serial_arm_link.hpp"
 #include "markcell/drivers/gpio.hpp"
 #include "markcell/drivers/watchdog_device.hpp"
 #include "markcell/host/config.hpp"
@@ -42,6 +46,11 @@ class Cell {
   drivers::GpioLines& gpio() { return *gpio_; }
   int gpio_line(LineRole role) const { return static_cast<int>(role); }
   SystemdNotifier& notifier() { return notifier_; }
+  control::SprayValve& spray_valve() { return *spray_valve_; }
+  drivers::ArmLink& arm_link() { return *arm_link_; }
+  control::ArmSupervision& arm_supervision() { return *arm_supervision_; }
+  // The simulated arm (null unless devices.arm.transport is simulated).
+  drivers::SimCanArm* sim_arm() { return sim_world_ ? sim_world_->arm.get() : nullptr; }
   // One line per privilege the real clock could not get (empty when all were granted).
   std::vector<std::string> privilege_warnings() const;
 
@@ -55,6 +64,16 @@ class Cell {
   drivers::SimGpioLines* sim_gpio_ = nullptr;
   std::unique_ptr<control::GpioSafeOutputs> gpio_safe_;
   std::unique_ptr<control::PlcIo> plc_io_;
+  std::unique_ptr<control::SprayValve> spray_valve_;
+  struct SimWorld {
+    drivers::SimCanWire wire;
+    std::unique_ptr<drivers::SimCanArm> arm;
+    static control::TaskResult task(control::TaskContext& ctx, void* self);
+  };
+  std::unique_ptr<SimWorld> sim_world_;
+  std::unique_ptr<drivers::SocketCanBus> can_bus_;
+  std::unique_ptr<drivers::ArmLink> arm_link_;
+  std::unique_ptr<control::ArmSupervision> arm_supervision_;
   SystemdNotifier notifier_;
   std::unique_ptr<drivers::WatchdogDevice> watchdog_device_;
   struct DeviceWatchdogSink;

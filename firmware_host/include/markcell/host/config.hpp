@@ -72,10 +72,24 @@ struct SerialConfig {
   int retries = 3;
 };
 
+struct ArmLimitsConfig {
+  double reach = 1.6;            // m, from the base origin
+  double max_tcp_speed = 1.0;    // m/s
+  double max_tcp_accel = 4.0;    // m/s^2
+  std::array<double, 3> home{0.3, 0.0, 0.6};  // tool position at home, base frame, m
+};
+
 struct ArmConfig {
   ArmTransport transport = ArmTransport::kSimulated;
   CanConfig can;
   SerialConfig serial;
+  ArmLimitsConfig limits;
+};
+
+struct SprayConfig {
+  Nanos pulse = millis(80);
+  Nanos min_pulse = millis(5);
+  Nanos max_pulse = millis(500);
 };
 
 enum class CameraSource : std::uint8_t { kSimulated, kAravis, kRecording };
@@ -127,6 +141,7 @@ struct CellConfig {
   control::ExecutiveSpec executive;
   WatchdogConfig watchdog;
   SafeStopConfig safe_stop;
+  SprayConfig spray;
   GpioConfig gpio;
   ArmConfig arm;
   CameraConfig cameras;

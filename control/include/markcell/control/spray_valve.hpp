@@ -1,0 +1,56 @@
+#pragma once
+// The spray valve, timed by the executive: a pulse is requested for a start time and a
+// length, and the `spray_valve` task (control lane, every tick) opens the valve at the
+// first tick at or after the start and closes it at the first tick at or after the end.
+// The timing resolution is therefore one base tick. A safe stop closes it at once and
+// refuses new pulses. Every pulse is recorded with its requested and actual times.
+#include <array>
+#include <cstdint>
+
+#include "markcell/control/executive.hpp"
+#include "markcell/drivers/gpio.hpp"
+
+namespace markcell::control {
+
+struct SprayPulse {
+  Nanos requested_start = 0;
+  Nanos requested_length = 0;
+  Nanos opened = -1;  // -1: not (yet) opened
+  Nanos closed = -1;
+  bool cut_short = false;  // closed early by a safe stop
+};
+
+enum class PulseRequest : std::uint8_t { kAccepted, kBusy, kBadLength, kSafeStopped };
+
+class SprayValve {
+ public:
+  static constexpr std::size_t kHistory = 256;
+  SprayValve(drivers::GpioLines& lines, int line, Nanos min_length, Nanos max_length)
+      : lines_(lines), line_(line), min_(min_length), max_(max_length) {}
+  // From any task on the control lane (not thread-safe across lanes by design: the
+  // marking sequence that asks for pulses runs on the same lane).
+  PulseRequest request(Nanos start, Nanos length, bool safe_stopped) noexcept;
+  TaskResult step(const TaskContext& ctx) noexcept;
+  static TaskResult task(TaskContext& ctx, void* self) { return static_cast<SprayValve*>(self)->step(ctx); }
+  bool open() const { return open_; }
+  // Pulses so far (oldest first, at most kHistory; older ones counted in dropped()).
+  std::size_t pulse_count() const { return count_; }
+  const SprayPulse& pulse(std::size_t i) const { return history_[i]; }
+  std::uint64_t dropped() const { return dropped_; }
+  std::uint64_t io_errors() const { return io_errors_; }
+
+ private:
+  void set(bool open) noexcept;
+  drivers::GpioLines& lines_;
+  int line_;
+  Nanos min_, max_;
+  bool pending_ = false;
+  bool open_ = false;
+  std::array<SprayPulse, kHistory> history_{};
+  std::size_t count_ = 0;
+  std::uint64_t dropped_ = 0;
+  std::uint64_t io_errors_ = 0;
+  SprayPulse current_;
+};
+
+}  // namespace markcell::control

@@ -1,0 +1,51 @@
+#include "markcell/control/spray_valve.hpp"
+
+namespace markcell::control {
+
+PulseRequest SprayValve::request(Nanos start, Nanos length, bool safe_stopped) noexcept {
+  if (safe_stopped) return PulseRequest::kSafeStopped;
+  if (pending_ || open_) return PulseRequest::kBusy;
+  if (length < min_ || length > max_) return PulseRequest::kBadLength;
+  current_ = SprayPulse{start, length, -1, -1, false};
+  pending_ = true;
+  return PulseRequest::kAccepted;
+}
+
+void SprayValve::set(bool value) noexcept {
+  if (lines_.set(line_, value) != drivers::GpioStatus::kOk) ++io_errors_;
+  open_ = value;
+}
+
+TaskResult SprayValve::step(const TaskContext& ctx) noexcept {
+  const Nanos now = ctx.now();
+  auto finish = [&] {
+    if (count_ == kHistory) {
+      ++dropped_;
+    } else {
+      history_[count_++] = current_;
+    }
+    pending_ = false;
+  };
+  if (ctx.safe_stopped()) {
+    // The safe stop has already driven the line; keep the books straight.
+    if (open_ || pending_) {
+      if (open_) current_.closed = now;
+      current_.cut_short = true;
+      open_ = false;
+      finish();
+    }
+    return TaskResult::kOk;
+  }
+  if (pending_ && !open_ && now >= current_.requested_start) {
+    set(true);
+    current_.opened = now;
+  }
+  if (open_ && now >= current_.requested_start + current_.requested_length) {
+    set(false);
+    current_.closed = now;
+    finish();
+  }
+  return io_errors_ > 0 ? TaskResult::kFault : TaskResult::kOk;
+}
+
+}  // namespace markcell::control

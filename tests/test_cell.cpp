@@ -1,0 +1,122 @@
+// The cell assembled from the example configuration, in simulated time: the arm link
+// over the simulated CAN arm, valve pulses timed by the executive, device faults to the
+// safe stop, and 10,000 cycles of the whole cell with no heap allocation.
+#include <catch2/catch.hpp>
+
+#include "alloc_guard.hpp"
+#include "markcell/host/cell.hpp"
+#include "test_files.hpp"
+
+using namespace markcell;
+using namespace markcell::host;
+
+namespace {
+
+struct SimCell {
+  SimCell() : config(load_config(test::source_path("config/cell.example.yaml"), task_catalog())), cell(config, ClockKind::kSimulated) {
+    cell.start();
+  }
+  ~SimCell() { cell.shutdown(control::FaultCode::kShutdown, "test", "end of test"); }
+  void run_to(Nanos t) { REQUIRE(cell.sim_clock()->run_until(t) == control::SimClock::RunResult::kReached); }
+  bool line(LineRole role) const { return const_cast<Cell&>(cell).sim_gpio()->physical(static_cast<int>(role)); }
+  CellConfig config;
+  Cell cell;
+};
+
+}  // namespace
+
+TEST_CASE("the simulated cell brings the arm link up over the simulated CAN arm") {
+  SimCell s;
+  s.run_to(millis(500));
+  CHECK(s.cell.arm_supervision().status() == drivers::ArmLinkStatus::kOk);
+  CHECK(s.cell.sim_arm()->nmt_state() == drivers::canopen::NmtState::kOperational);
+  CHECK_FALSE(s.cell.safe_stop().active());
+  CHECK(s.line(LineRole::kPlcReady));
+  CHECK_FALSE(s.line(LineRole::kPlcFault));
+}
+
+TEST_CASE("a valve pulse opens and closes on the executive's ticks") {
+  SimCell s;
+  s.run_to(millis(100));
+  // Asked for 100.5 ms + 80 ms: opens at the first tick at or after 100.5 ms (101 ms),
+  // closes at the first tick at or after 180.5 ms (181 ms).
+  REQUIRE(s.cell.spray_valve().request(micros(100'500), millis(80), false) == control::PulseRequest::kAccepted);
+  CHECK(s.cell.spray_valve().request(millis(150), millis(80), false) == control::PulseRequest::kBusy);
+  s.run_to(millis(300));
+  REQUIRE(s.cell.spray_valve().pulse_count() == 1);
+  const auto& p = s.cell.spray_valve().pulse(0);
+  CHECK(p.opened == millis(101));
+  CHECK(p.closed == millis(181));
+  CHECK_FALSE(p.cut_short);
+  // The wire saw the same: the valve line went high at 101 ms and low at 181 ms.
+  std::vector<std::pair<bool, Nanos>> valve;
+  for (const auto& e : s.cell.sim_gpio()->output_history())
+    if (e.line == static_cast<int>(LineRole::kSprayValve)) valve.emplace_back(e.active, e.time);
+  REQUIRE(valve.size() == 2);
+  CHECK(valve[0] == std::pair<bool, Nanos>{true, millis(101)});
+  CHECK(valve[1] == std::pair<bool, Nanos>{false, millis(181)});
+  CHECK(s.cell.spray_valve().request(millis(400), millis(1), false) == control::PulseRequest::kBadLength);
+}
+
+TEST_CASE("the arm falling silent safe-stops the cell: valve closed, PLC told") {
+  SimCell s;
+  s.run_to(millis(200));
+  REQUIRE(s.cell.spray_valve().request(millis(250), millis(400), false) == control::PulseRequest::kAccepted);
+  s.run_to(millis(300));
+  REQUIRE(s.line(LineRole::kSprayValve));
+  s.cell.sim_arm()->set_silent(true);
+  s.run_to(millis(700));
+  REQUIRE(s.cell.safe_stop().done());
+  const auto& why = s.cell.safe_stop().reason();
+  CHECK(why.code == control::FaultCode::kDeviceFault);
+  CHECK(why.source.view() == "arm");
+  CHECK(why.detail.view() == "arm link heartbeat_lost (arm fault code 0)");
+  // The arm's last heartbeat went out in the 300 ms tick (sim_world runs after
+  // arm_link), the link read it at 301 ms, and the first tick more than 150 ms later is
+  // 452 ms.
+  CHECK(why.time == millis(452));
+  CHECK_FALSE(s.line(LineRole::kSprayValve));
+  CHECK(s.line(LineRole::kPlcFault));
+  CHECK_FALSE(s.line(LineRole::kPlcReady));
+  REQUIRE(s.cell.spray_valve().pulse_count() == 1);
+  CHECK(s.cell.spray_valve().pulse(0).cut_short);
+}
+
+TEST_CASE("an e-stop holds the arm where it is") {
+  SimCell s;
+  s.run_to(millis(200));
+  drivers::ArmCommand move;
+  move.mode = drivers::ArmMode::kMove;
+  move.target.position = {0.9, 0.4, 0.2};
+  s.cell.arm_link().send(move, millis(200));
+  s.run_to(millis(400));  // on its way
+  const auto moving = s.cell.sim_arm()->model().tool().position;
+  CHECK(moving[0] > 0.35);
+  const int estop = static_cast<int>(LineRole::kPlcEstop);
+  s.cell.sim_gpio()->drive_physical(estop, false);  // active low: pressed
+  s.run_to(millis(1500));
+  REQUIRE(s.cell.safe_stop().done());
+  CHECK(s.cell.safe_stop().reason().code == control::FaultCode::kOperatorStop);
+  CHECK(s.cell.sim_arm()->model().state().mode == drivers::ArmMode::kHold);
+  const auto held = s.cell.sim_arm()->model().tool().position;
+  CHECK(held[0] < 0.9 - 0.05);  // it did not carry on to the target
+}
+
+TEST_CASE("10,000 cycles of the whole simulated cell allocate nothing") {
+  SimCell s;
+  s.run_to(millis(200));  // warm-up: link up, first states in
+  REQUIRE(s.cell.spray_valve().request(millis(5000), millis(80), false) == control::PulseRequest::kAccepted);
+  std::size_t allocations = 0;
+  control::SimClock::RunResult result;
+  {
+    test::AllocationGuard guard;
+    result = s.cell.sim_clock()->run_until(millis(200) + seconds(10));
+    allocations = guard.allocations();
+  }
+  CHECK(result == control::SimClock::RunResult::kReached);
+  CHECK(allocations == 0);
+  CHECK(s.cell.executive().task_stats(0).exec.count() == 10'201);
+  CHECK(s.cell.arm_supervision().status() == drivers::ArmLinkStatus::kOk);
+  CHECK(s.cell.spray_valve().pulse_count() == 1);
+  CHECK_FALSE(s.cell.safe_stop().active());
+}

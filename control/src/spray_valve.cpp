@@ -40,7 +40,9 @@ TaskResult SprayValve::step(const TaskContext& ctx) noexcept {
     set(true);
     current_.opened = now;
   }
-  if (open_ && now >= current_.requested_start + current_.requested_length) {
+  // The length is guaranteed from the moment the valve really opened: a late tick
+  // shifts the pulse, it does not shorten it (the paint laid down depends on it).
+  if (open_ && now >= current_.opened + current_.requested_length) {
     set(false);
     current_.closed = now;
     finish();

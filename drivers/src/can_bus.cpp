@@ -71,7 +71,9 @@ CanStatus SocketCanBus::send(const CanFrame& f) noexcept {
   const std::size_t size = f.fd ? CANFD_MTU : CAN_MTU;
   const ssize_t n = ::send(fd_, &raw, size, MSG_DONTWAIT);
   if (n == static_cast<ssize_t>(size)) return CanStatus::kOk;
-  if (n < 0 && (errno == EAGAIN || errno == ENOBUFS)) return CanStatus::kWouldBlock;  // TX queue full
+  // TX queue full, or the interface is down (ip link set down, a controller restarting):
+  // transient, and the heartbeat supervision reports it if it lasts.
+  if (n < 0 && (errno == EAGAIN || errno == ENOBUFS || errno == ENETDOWN)) return CanStatus::kWouldBlock;
   return CanStatus::kIoError;
 }
 
@@ -88,6 +90,10 @@ int SocketCanBus::receive(std::span<CanFrame> out, Nanos timeout) noexcept {
     const ssize_t got = ::recv(fd_, &raw, sizeof(raw), MSG_DONTWAIT);
     if (got < 0) {
       if (errno == EAGAIN) break;
+      if (errno == ENETDOWN) {  // reported once when the interface goes down: not fatal
+        ++down_events_;
+        break;
+      }
       return n > 0 ? n : -1;
     }
     if (got != CAN_MTU && got != CANFD_MTU) {

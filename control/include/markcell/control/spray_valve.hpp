@@ -1,8 +1,9 @@
 #pragma once
 // The spray valve, timed by the executive: a pulse is requested for a start time and a
 // length, and the `spray_valve` task (control lane, every tick) opens the valve at the
-// first tick at or after the start and closes it at the first tick at or after the end.
-// The timing resolution is therefore one base tick. A safe stop closes it at once and
+// first tick at or after the start and closes it at the first tick at least `length`
+// after it opened. The timing resolution is one base tick, and a late tick delays a
+// pulse without shortening it. A safe stop closes it at once and
 // refuses new pulses. Every pulse is recorded with its requested and actual times.
 #include <array>
 #include <cstdint>

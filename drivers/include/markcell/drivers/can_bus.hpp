@@ -60,11 +60,13 @@ class SocketCanBus final : public CanBus {
   CanStatus send(const CanFrame& frame) noexcept override;
   int receive(std::span<CanFrame> out, Nanos timeout) noexcept override;
   std::uint64_t dropped() const { return dropped_; }
+  std::uint64_t down_events() const { return down_events_; }  // the interface went down
 
  private:
   SocketCanConfig config_;
   int fd_ = -1;
   std::uint64_t dropped_ = 0;
+  std::uint64_t down_events_ = 0;
 };
 
 // Two endpoints joined by an in-memory wire: what one sends, the other receives, in

@@ -1,0 +1,353 @@
+// The real system-call paths of the CAN and GPIO drivers, on a real Linux kernel: run
+// inside the guest kernel by toolchain/guest/run through tests/guest/realkernel.sh,
+// which sets up vcan0 and a gpio-sim chip named after the example configuration.
+// Outside the guest (no MARKCELL_VCAN / MARKCELL_GPIO_CHIP) it exits 77: skipped.
+#include <fcntl.h>
+#include <linux/can.h>
+#include <linux/can/error.h>
+#include <net/if.h>
+#include <signal.h>
+#include <sys/ioctl.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <catch2/catch.hpp>
+#include <chrono>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <thread>
+#include <vector>
+
+#include "dbc.hpp"
+#include "markcell/control/spray_valve.hpp"
+#include "markcell/drivers/can_arm_link.hpp"
+#include "markcell/drivers/gpiod_lines.hpp"
+#include "markcell/host/cell.hpp"
+#include "markcell/host/config.hpp"
+#include "test_files.hpp"
+
+using namespace markcell;
+using namespace markcell::drivers;
+
+int markcell_run_catch(int argc, char** argv);
+
+namespace {
+
+std::string env(const char* name) {
+  const char* v = std::getenv(name);
+  return v != nullptr ? v : "";
+}
+
+// gpio-sim's sysfs attributes of line `offset`.
+std::string sim_attr(int offset, const char* attr) {
+  return env("MARKCELL_GPIO_SIM") + "/sim_gpio" + std::to_string(offset) + "/" + attr;
+}
+int sim_value(int offset) {
+  std::ifstream in(sim_attr(offset, "value"));
+  int v = -1;
+  in >> v;
+  return v;
+}
+void sim_pull(int offset, bool up) {
+  std::ofstream out(sim_attr(offset, "pull"));
+  out << (up ? "pull-up" : "pull-down");
+}
+
+// The line requests the cell makes, from the example configuration.
+std::vector<LineRequest> example_requests() {
+  const auto cfg = host::load_config(test::source_path("config/cell.example.yaml"), host::task_catalog());
+  std::vector<LineRequest> r;
+  for (std::size_t i = 0; i < host::kLineRoleCount; ++i) {
+    const auto role = static_cast<host::LineRole>(i);
+    r.push_back(LineRequest{cfg.gpio.lines[i].line, host::is_output(role), cfg.gpio.lines[i].active_low, false});
+  }
+  return r;
+}
+
+constexpr int kValveLine = static_cast<int>(host::LineRole::kSprayValve);
+constexpr int kPanelLine = static_cast<int>(host::LineRole::kPlcPanelPresent);
+constexpr int kEstopLine = static_cast<int>(host::LineRole::kPlcEstop);
+constexpr int kFaultLine = static_cast<int>(host::LineRole::kPlcFault);
+
+}  // namespace
+
+TEST_CASE("libgpiod on gpio-sim: the example's named lines, outputs requested in their safe state", "[gpio]") {
+  GpiodLines lines(env("MARKCELL_GPIO_CHIP"));
+  lines.configure(example_requests());
+  lines.activate();
+  for (int i = 0; i < static_cast<int>(host::kLineRoleCount); ++i) CHECK(lines.offset(i) == static_cast<unsigned>(i));
+  CHECK(sim_value(kValveLine) == 0);  // closed
+  CHECK(sim_value(kFaultLine) == 0);
+  CHECK(lines.set(kValveLine, true) == GpioStatus::kOk);
+  CHECK(sim_value(kValveLine) == 1);
+  CHECK(lines.set(kPanelLine, true) == GpioStatus::kWrongDirection);
+  lines.deactivate();
+  CHECK(sim_value(kValveLine) == 0);  // safe state on deactivate
+}
+
+TEST_CASE("PLC inputs: pulls become edge events with kernel timestamps, active-low honoured", "[gpio]") {
+  sim_pull(kPanelLine, false);
+  sim_pull(kEstopLine, true);  // released: the active-low line is high
+  GpiodLines lines(env("MARKCELL_GPIO_CHIP"));
+  lines.configure(example_requests());
+  lines.activate();
+  bool v = true;
+  REQUIRE(lines.get(kEstopLine, v) == GpioStatus::kOk);
+  CHECK_FALSE(v);
+  std::array<LineEvent, 8> events{};
+  const Nanos before = monotonic_now();
+  sim_pull(kPanelLine, true);
+  const int n = lines.read_events(events, seconds(2));
+  const Nanos after = monotonic_now();
+  REQUIRE(n == 1);
+  CHECK(events[0].line == kPanelLine);
+  CHECK(events[0].active);
+  CHECK(events[0].time >= before);
+  CHECK(events[0].time <= after);
+  sim_pull(kEstopLine, false);  // pressed: pulls the active-low line down = active
+  REQUIRE(lines.read_events(events, seconds(2)) == 1);
+  CHECK(events[0].line == kEstopLine);
+  CHECK(events[0].active);
+  REQUIRE(lines.get(kEstopLine, v) == GpioStatus::kOk);
+  CHECK(v);
+  CHECK(lines.read_events(events, millis(50)) == 0);  // nothing else happened
+  lines.deactivate();
+  sim_pull(kPanelLine, false);
+  sim_pull(kEstopLine, true);
+}
+
+TEST_CASE("valve pulses timed by the executive, read back from the simulator's value attribute", "[gpio]") {
+  GpiodLines lines(env("MARKCELL_GPIO_CHIP"));
+  lines.configure(example_requests());
+  lines.activate();
+  control::ExecutiveSpec spec;
+  spec.tick = millis(1);
+  spec.lanes = {{"control", -1, 0}};
+  spec.tasks = {{"spray_valve", 0, 1, 0, millis(1), control::OverrunPolicy::kLog}};
+  spec.lane_stall_limit = seconds(2);  // emulated CPU: generous
+  spec.supervisor_period = millis(100);
+  control::RealClock clock;
+  control::FaultLog log;
+  control::SafeStop safe(log);
+  control::SprayValve valve(lines, kValveLine, millis(5), millis(500));
+  control::Executive exec(spec, clock, safe);
+  exec.bind("spray_valve", &control::SprayValve::task, &valve);
+  // Sample the simulator's value attribute as a scope on the line would.
+  std::atomic<bool> sampling{true};
+  std::vector<std::pair<Nanos, int>> edges;
+  std::thread scope([&] {
+    int last = sim_value(kValveLine);
+    while (sampling.load()) {
+      const int v = sim_value(kValveLine);
+      if (v != last) edges.emplace_back(monotonic_now(), v);
+      last = v;
+      std::this_thread::sleep_for(std::chrono::microseconds(200));
+    }
+  });
+  exec.start();
+  const Nanos start = monotonic_now() + millis(100);
+  REQUIRE(valve.request(start, millis(150), false) == control::PulseRequest::kAccepted);
+  std::this_thread::sleep_for(std::chrono::milliseconds(600));
+  exec.stop();
+  sampling = false;
+  scope.join();
+  lines.deactivate();
+  REQUIRE(valve.pulse_count() == 1);
+  const auto& p = valve.pulse(0);
+  std::cout << "pulse: asked 150 ms at +100 ms; opened " << to_micros(p.opened - start) << " us late, lasted "
+            << to_micros(p.closed - p.opened) << " us; scope saw " << edges.size() << " edges\n";
+  CHECK(p.opened >= start);
+  CHECK(p.closed - p.opened >= millis(150));
+  REQUIRE(edges.size() == 2);
+  CHECK(edges[0].second == 1);
+  CHECK(edges[1].second == 0);
+  CHECK(edges[0].first >= p.opened);                       // the line went high after the write
+  CHECK(edges[1].first - edges[0].first >= millis(140));  // and stayed high for the pulse (scope jitter aside)
+}
+
+TEST_CASE("a killed holder: the kernel releases the lines and they follow their pull", "[gpio]") {
+  int ready[2];
+  REQUIRE(pipe(ready) == 0);
+  const pid_t child = fork();
+  if (child == 0) {
+    GpiodLines lines(env("MARKCELL_GPIO_CHIP"));
+    lines.configure(example_requests());
+    lines.activate();
+    lines.set(kValveLine, true);
+    [[maybe_unused]] const auto n = write(ready[1], "x", 1);
+    pause();
+    _exit(0);
+  }
+  char c = 0;
+  REQUIRE(read(ready[0], &c, 1) == 1);
+  CHECK(sim_value(kValveLine) == 1);  // the valve is open while its holder lives
+  kill(child, SIGKILL);
+  waitpid(child, nullptr, 0);
+  // Released: another process can request it again (configure checks it is unused) ...
+  GpiodLines again(env("MARKCELL_GPIO_CHIP"));
+  CHECK_NOTHROW(again.configure(example_requests()));
+  // ... and gpio-sim now shows the level of the line's pull (pull-down by default): on
+  // real hardware a released line keeps whatever its driver and wiring make of it, which
+  // is why the valve must be normally closed in hardware.
+  CHECK(sim_value(kValveLine) == 0);
+  close(ready[0]);
+  close(ready[1]);
+}
+
+namespace {
+
+SocketCanConfig vcan(bool link_side) {
+  SocketCanConfig c;
+  c.interface = env("MARKCELL_VCAN");
+  if (link_side) {
+    c.filter_ids = {canopen::kToolPositionId + 2, canopen::kToolRotationId + 2, canopen::kHeartbeatId + 2};
+    c.filter_count = 3;
+  }
+  return c;
+}
+
+struct VcanBench {
+  VcanBench() : link_bus(vcan(true)), arm_bus(vcan(false)), arm(arm_bus, 2, SimArmLimits{}), link(link_bus, CanArmLinkConfig{}) {
+    arm.start(monotonic_now());
+    link.activate(monotonic_now());
+  }
+  void run(int ms) {
+    for (int i = 0; i < ms; ++i) {
+      const Nanos now = monotonic_now();
+      arm.poll(now);
+      link.poll(now);
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+  }
+  SocketCanBus link_bus, arm_bus;
+  SimCanArm arm;
+  CanArmLink link;
+};
+
+// Sends a raw error frame on the interface, as a CAN controller's driver would.
+bool send_error_frame(std::uint32_t error_class) {
+  const int fd = socket(PF_CAN, SOCK_RAW, CAN_RAW);
+  if (fd < 0) return false;
+  ifreq ifr{};
+  std::strncpy(ifr.ifr_name, env("MARKCELL_VCAN").c_str(), IFNAMSIZ - 1);
+  ioctl(fd, SIOCGIFINDEX, &ifr);
+  sockaddr_can addr{};
+  addr.can_family = AF_CAN;
+  addr.can_ifindex = ifr.ifr_ifindex;
+  bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr));
+  can_frame f{};
+  f.can_id = CAN_ERR_FLAG | error_class;
+  f.can_dlc = CAN_ERR_DLC;
+  const bool ok = write(fd, &f, sizeof(f)) == sizeof(f);
+  close(fd);
+  return ok;
+}
+
+}  // namespace
+
+TEST_CASE("CAN over vcan: the arm link and the simulated arm, traffic decoded from candump with the DBC", "[can]") {
+  test::TempDir dir;
+  const std::string capture = (dir.path() / "candump.log").string();
+  const pid_t dump = fork();
+  if (dump == 0) {
+    const int out = ::open(capture.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(out, STDOUT_FILENO);
+    execlp("candump", "candump", "-L", env("MARKCELL_VCAN").c_str(), static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  {
+    VcanBench b;
+    b.run(150);
+    REQUIRE(b.link.status() == ArmLinkStatus::kOk);
+    ArmCommand c;
+    c.mode = ArmMode::kMove;
+    c.time = monotonic_now();
+    c.target.position = {0.5, -0.25, 0.4};
+    c.target.rotation = {0.0, 0.5, 0.0};
+    const auto seq = b.link.send(c, monotonic_now());
+    b.run(1500);
+    CHECK(b.link.status() == ArmLinkStatus::kOk);
+    CHECK(b.link.state().applied_seq == seq);
+    CHECK(b.link.state().in_position());
+    CHECK(b.link.state().tool.position[0] == Approx(0.5).margin(1e-3));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  kill(dump, SIGINT);
+  waitpid(dump, nullptr, 0);
+
+  // candump -L lines: "(1700000000.123456) vcan0 202#88130000A00F0101"
+  const auto dbc = test::Dbc::load(test::source_path("config/markcell_arm.dbc"));
+  std::ifstream in(capture);
+  std::string line;
+  int targets = 0, heartbeats = 0, states = 0;
+  while (std::getline(in, line)) {
+    const auto hash = line.find('#');
+    const auto space = line.rfind(' ', hash);
+    REQUIRE(hash != std::string::npos);
+    const auto id = static_cast<std::uint32_t>(std::stoul(line.substr(space + 1, hash - space - 1), nullptr, 16));
+    const std::string hex = line.substr(hash + 1);
+    std::vector<std::uint8_t> data;
+    for (std::size_t i = 0; i + 1 < hex.size(); i += 2) data.push_back(static_cast<std::uint8_t>(std::stoul(hex.substr(i, 2), nullptr, 16)));
+    if (dbc.find(id) == nullptr) continue;
+    const auto v = dbc.decode(id, data.data(), static_cast<int>(data.size()));
+    if (id == 0x202) {
+      ++targets;
+      CHECK(v.at("target_x") == Approx(0.5).margin(1e-9));
+      CHECK(v.at("target_y") == Approx(-0.25).margin(1e-9));
+      CHECK(v.at("target_z") == Approx(0.4).margin(1e-9));
+      CHECK(v.at("mode") == 1);
+    }
+    if (id == 0x702) {
+      ++heartbeats;
+      CHECK((v.at("nmt_state") == 5 || v.at("nmt_state") == 0 || v.at("nmt_state") == 127));
+    }
+    if (id == 0x182) ++states;
+  }
+  std::cout << "candump: " << targets << " set-points, " << heartbeats << " arm heartbeats, " << states << " arm states\n";
+  CHECK(targets == 1);
+  CHECK(heartbeats >= 10);
+  CHECK(states >= 50);
+}
+
+TEST_CASE("CAN over vcan: heartbeat loss, bus-off error frames, an interface restart", "[can]") {
+  VcanBench b;
+  b.run(150);
+  REQUIRE(b.link.status() == ArmLinkStatus::kOk);
+  SECTION("heartbeat loss") {
+    b.arm.set_silent(true);
+    b.run(400);
+    CHECK(b.link.status() == ArmLinkStatus::kHeartbeatLost);
+  }
+  SECTION("bus-off reported from the controller's error frame, cleared by its restart") {
+    REQUIRE(send_error_frame(CAN_ERR_BUSOFF));
+    b.run(20);
+    CHECK(b.link.status() == ArmLinkStatus::kBusOff);
+    REQUIRE(send_error_frame(CAN_ERR_RESTARTED));
+    b.run(150);
+    CHECK(b.link.status() == ArmLinkStatus::kOk);
+    CHECK(b.link.counters().restarts == 1);
+  }
+  SECTION("the interface goes down and comes back") {
+    REQUIRE(test::run_command("ip link set " + env("MARKCELL_VCAN") + " down").exit_code == 0);
+    b.run(400);
+    CHECK(b.link.status() == ArmLinkStatus::kHeartbeatLost);
+    REQUIRE(test::run_command("ip link set " + env("MARKCELL_VCAN") + " up").exit_code == 0);
+    b.run(400);
+    CHECK(b.link.status() == ArmLinkStatus::kOk);
+    CHECK(b.link_bus.down_events() >= 1);
+  }
+}
+
+int main(int argc, char** argv) {
+  if (env("MARKCELL_VCAN").empty() || env("MARKCELL_GPIO_CHIP").empty()) {
+    std::cout << "SKIPPED: not inside the guest kernel (run through toolchain/guest/run and tests/guest/realkernel.sh)\n";
+    return 77;
+  }
+  return markcell_run_catch(argc, argv);
+}

@@ -14,6 +14,6 @@ trap 'rm -rf "$work"' EXIT
 mkdir -p "$work/corpus"
 for seed in "$@"; do cp "$seed" "$work/corpus/"; done
 cd "$work"
-"$binary" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 corpus 2>&1 | tail -n 25
+"$binary" -max_total_time="$seconds" -error_exitcode=1 -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 corpus 2>&1 | tail -n 25
 status=${PIPESTATUS[0]}
 exit "$status"

@@ -190,6 +190,18 @@ TEST_CASE_METHOD(Fixture, "spray pulse and arm limits are checked against each o
   CHECK(m[1] == file() + ":32:107: devices.arm.limits.home_m: home is beyond reach_m");
 }
 
+TEST_CASE_METHOD(Fixture, "sections of the wrong kind are errors, not crashes (found by the fuzzer)") {
+  for (const char* executive : {"executive: 5\n", "executive: [a, b]\n", "executive: {tasks: 3}\n", "executive: {}\n"}) {
+    const auto e = check(executive);
+    REQUIRE_FALSE(e.empty());
+    CHECK(e[0].path == "cell");  // the first missing section, at the document
+  }
+  const auto e = check("executive: 5\n");
+  bool named = false;
+  for (const auto& x : e) named |= x.to_string() == file() + ":1:12: executive: expected a map, got \"5\"";
+  CHECK(named);
+}
+
 TEST_CASE_METHOD(Fixture, "YAML syntax errors carry their position") {
   const auto m = messages(check(replace(kValid, "  door: {macro_features: 10}", "  door: {macro_features: 10")));
   REQUIRE(m.size() == 1);

@@ -618,7 +618,12 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
 
   // Simulated devices are advanced by the sim_world task: one without the other is a
   // configuration that cannot run.
-  if (const auto tasks = root["executive"]["tasks"]; tasks.IsMap()) {
+  // yaml-cpp throws when a scalar is indexed or a missing key's node is asked its type:
+  // every level is checked to be defined and a map first (both found by the fuzzer).
+  const auto is_map = [](const YAML::Node& n) { return n.IsDefined() && n.IsMap(); };
+  const YAML::Node& const_root = root;
+  const YAML::Node executive = const_root["executive"];
+  if (const YAML::Node tasks = is_map(executive) ? executive["tasks"] : YAML::Node(); is_map(tasks)) {
     const bool has_world = tasks["sim_world"].IsDefined();
     const bool simulated = cfg.arm.transport == ArmTransport::kSimulated;
     if (simulated && !has_world)

@@ -27,6 +27,7 @@
 #include "markcell/control/spray_valve.hpp"
 #include "markcell/drivers/can_arm_link.hpp"
 #include "markcell/drivers/gpiod_lines.hpp"
+#include "markcell/drivers/watchdog_device.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
 #include "test_files.hpp"
@@ -342,6 +343,21 @@ TEST_CASE("CAN over vcan: heartbeat loss, bus-off error frames, an interface res
     CHECK(b.link.status() == ArmLinkStatus::kOk);
     CHECK(b.link_bus.down_events() >= 1);
   }
+}
+
+TEST_CASE("the watchdog device on the kernel's softdog: armed with a timeout, fed, disarmed by the magic close",
+          "[watchdog]") {
+  // softdog is loaded by the guest's init; a wrong close would reset the guest, which
+  // the runner reports as a guest that died without a status.
+  WatchdogDevice wd({"/dev/watchdog", 7});
+  wd.activate();
+  CHECK(wd.timeout_s() == 7);
+  for (int i = 0; i < 5; ++i) {
+    CHECK(wd.feed());
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  wd.deactivate();
+  CHECK_FALSE(wd.active());
 }
 
 int main(int argc, char** argv) {

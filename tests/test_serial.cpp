@@ -11,6 +11,7 @@
 #include "markcell/drivers/serial_arm_link.hpp"
 #include "markcell/drivers/serial_protocol.hpp"
 #include "markcell/drivers/sim_arm.hpp"
+#include "alloc_guard.hpp"
 #include "socat_pair.hpp"
 
 using namespace markcell;
@@ -224,6 +225,27 @@ TEST_CASE("serial link over socat: the arm moves to the set-point and reports it
   for (int i = 0; i < 3; ++i) CHECK(s.tool.position[static_cast<std::size_t>(i)] == Approx(c.target.position[static_cast<std::size_t>(i)]).margin(0.001));
   CHECK(b.link->counters().states_received > 100);
   CHECK(b.link->counters().decode_errors == 0);
+}
+
+TEST_CASE("serial link over socat: sending and polling allocate nothing once active") {
+  Bench b;
+  b.run(50);
+  ArmCommand c;
+  c.mode = ArmMode::kMove;
+  c.target.position = {0.4, 0.1, 0.5};
+  std::size_t allocations = 0;
+  {
+    test::AllocationGuard guard;
+    for (int i = 0; i < 300; ++i) {
+      const Nanos now = monotonic_now();
+      if (i % 10 == 0) b.link->send(c, now);
+      b.link->poll(now);
+      b.arm.poll(now);
+    }
+    allocations = guard.allocations();
+  }
+  CHECK(allocations == 0);
+  CHECK(b.link->status() == ArmLinkStatus::kOk);
 }
 
 TEST_CASE("serial link over socat: line noise is survived and counted") {

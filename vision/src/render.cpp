@@ -1,0 +1,237 @@
+#include "markcell/vision/render.hpp"
+
+#include <array>
+#include <cmath>
+#include <stdexcept>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/eigen.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace markcell::vision {
+
+bool PanelShape::solid(double x, double y) const {
+  if (x < -width / 2 || x > width / 2 || y < -height / 2 || y > height / 2) return false;
+  for (const auto& r : cutouts)
+    if (x > r.x0 && x < r.x1 && y > r.y0 && y < r.y1) return false;
+  for (const auto& h : holes)
+    if ((x - h.x) * (x - h.x) + (y - h.y) * (y - h.y) < h.radius * h.radius) return false;
+  return true;
+}
+
+PanelShape door_shape() {
+  PanelShape p;
+  p.name = "door";
+  p.width = 1.10;
+  p.height = 0.80;
+  p.bend = 0.12;
+  p.cutouts = {{-0.42, 0.10, 0.30, 0.34},    // window opening
+               {0.36, -0.02, 0.46, 0.03}};   // handle recess
+  p.holes = {{-0.30, -0.22, 0.015}, {0.05, -0.28, 0.012}};
+  const double w = p.width / 2, h = p.height / 2;
+  const std::vector<std::pair<double, double>> corners = {
+      {-w, -h}, {w, -h}, {w, h}, {-w, h},                          // outer corners
+      {-0.42, 0.10}, {0.30, 0.10}, {0.30, 0.34}, {-0.42, 0.34},    // window opening
+      {0.36, -0.02}, {0.46, 0.03}};                                // handle recess
+  for (const auto& [x, y] : corners) p.macro_features.push_back(p.surface_point(x, y));
+  return p;
+}
+
+PanelShape fender_shape() {
+  PanelShape p;
+  p.name = "fender";
+  p.width = 0.95;
+  p.height = 0.60;
+  p.bend = 0.25;
+  p.cutouts = {{-0.475, -0.30, -0.15, -0.05},  // wheel-arch notch at the lower left
+               {0.10, 0.08, 0.28, 0.18}};      // indicator opening
+  p.holes = {{0.35, -0.20, 0.012}, {-0.30, 0.20, 0.012}};
+  const double w = p.width / 2, h = p.height / 2;
+  const std::vector<std::pair<double, double>> corners = {
+      {-w, h}, {w, h}, {w, -h}, {-0.15, -h},          // outer corners (the notch cuts one)
+      {-w, -0.05}, {-0.15, -0.05},                    // the notch's inner corners
+      {0.10, 0.08}, {0.28, 0.08}, {0.28, 0.18}, {0.10, 0.18}};  // indicator opening
+  for (const auto& [x, y] : corners) p.macro_features.push_back(p.surface_point(x, y));
+  return p;
+}
+
+PanelShape panel_shape(const std::string& name) {
+  if (name == "door") return door_shape();
+  if (name == "fender") return fender_shape();
+  throw std::invalid_argument("unknown panel type '" + name + "' (known: door, fender)");
+}
+
+Eigen::Vector2d project_point(const CameraModel& c, const Eigen::Vector3d& p) {
+  const double x = p.x() / p.z(), y = p.y() / p.z();
+  double k1 = 0, k2 = 0, p1 = 0, p2 = 0, k3 = 0;
+  const int n = c.distortion.empty() ? 0 : static_cast<int>(c.distortion.total());
+  const auto d = [&](int i) { return i < n ? c.distortion.at<double>(i) : 0.0; };
+  k1 = d(0);
+  k2 = d(1);
+  p1 = d(2);
+  p2 = d(3);
+  k3 = d(4);
+  const double r2 = x * x + y * y;
+  const double radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2;
+  const double xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x);
+  const double yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y;
+  return {c.K(0, 0) * xd + c.K(0, 1) * yd + c.K(0, 2), c.K(1, 1) * yd + c.K(1, 2)};
+}
+
+namespace {
+// 8 samples per pixel on an n-rooks pattern: every sample has its own column and its own
+// row in an 8x8 grid, so an axis-aligned edge is resolved in steps of 1/8 pixel (a 2x2
+// grid would quantise it to 1/2 and bias corner positions by a tenth of a pixel).
+constexpr int kSamples = 8;
+constexpr std::array<int, kSamples> kRookRow = {5, 2, 7, 0, 3, 6, 1, 4};
+}  // namespace
+
+StereoRenderer::StereoRenderer(StereoCalibration rig, RenderSettings settings)
+    : rig_(std::move(rig)), settings_(std::move(settings)) {
+  for (int cam = 0; cam < 2; ++cam) {
+    const CameraModel& c = cam == 0 ? rig_.left : rig_.right;
+    std::vector<cv::Point2f> pixels;
+    pixels.reserve(static_cast<std::size_t>(c.width) * static_cast<std::size_t>(c.height) * kSamples);
+    for (int v = 0; v < c.height; ++v)
+      for (int u = 0; u < c.width; ++u)
+        for (int s = 0; s < kSamples; ++s)  // pixel (u, v) covers [u - 0.5, u + 0.5] x [v - 0.5, v + 0.5]
+          pixels.emplace_back(static_cast<float>(u - 0.5 + (s + 0.5) / kSamples),
+                              static_cast<float>(v - 0.5 + (kRookRow[static_cast<std::size_t>(s)] + 0.5) / kSamples));
+    cv::Mat K;
+    cv::eigen2cv(c.K, K);
+    std::vector<cv::Point2f> normalised;
+    cv::undistortPoints(pixels, normalised, K, c.distortion.empty() ? cv::Mat() : c.distortion);
+    cv::Mat rays(c.height, c.width * kSamples, CV_32FC3);
+    std::size_t i = 0;
+    for (int v = 0; v < c.height; ++v) {
+      cv::Vec3f* row = rays.ptr<cv::Vec3f>(v);
+      for (int k = 0; k < c.width * kSamples; ++k, ++i) {
+        const auto& q = normalised[i];
+        const double norm = std::sqrt(q.x * q.x + q.y * q.y + 1.0);
+        row[k] = cv::Vec3f(static_cast<float>(q.x / norm), static_cast<float>(q.y / norm), static_cast<float>(1.0 / norm));
+      }
+    }
+    rays_.push_back(rays);
+  }
+}
+
+Eigen::Vector2d StereoRenderer::project(int camera, const Eigen::Vector3d& p_CamR) const {
+  if (camera == 1) return project_point(rig_.right, p_CamR);
+  return project_point(rig_.left, rig_.X_CamR_CamL.inverse() * p_CamR);
+}
+
+namespace {
+
+// A faint texture fixed to the panel: smooth value noise on a 2 cm lattice.
+double texture(double x, double y) {
+  const auto hash = [](std::int64_t i, std::int64_t j) {
+    std::uint64_t h = static_cast<std::uint64_t>(i) * 0x9E3779B97F4A7C15ULL ^ static_cast<std::uint64_t>(j) * 0xC2B2AE3D27D4EB4FULL;
+    h ^= h >> 29;
+    h *= 0xBF58476D1CE4E5B9ULL;
+    h ^= h >> 32;
+    return static_cast<double>(h & 0xFFFF) / 65535.0 * 2.0 - 1.0;
+  };
+  const double s = 50.0;  // cells per metre
+  const double fx = x * s, fy = y * s;
+  const auto i = static_cast<std::int64_t>(std::floor(fx)), j = static_cast<std::int64_t>(std::floor(fy));
+  const double tx = fx - std::floor(fx), ty = fy - std::floor(fy);
+  const double sx = tx * tx * (3 - 2 * tx), sy = ty * ty * (3 - 2 * ty);
+  const double a = hash(i, j), b = hash(i + 1, j), c = hash(i, j + 1), d = hash(i + 1, j + 1);
+  return (a * (1 - sx) + b * sx) * (1 - sy) + (c * (1 - sx) + d * sx) * sy;
+}
+
+// Distance along a unit ray from the origin to an occluder, or -1. The capsule is drawn
+// as 17 overlapping spheres along its axis: a smooth limb as long as its length is
+// under 16 radii, which the rig's occluders respect.
+double hit_capsule(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Occluder& c) {
+  const Eigen::Vector3d ab = c.b_CamR - c.a_CamR;
+  double best = -1;
+  for (int k = 0; k <= 16; ++k) {
+    const Eigen::Vector3d centre = c.a_CamR + ab * (static_cast<double>(k) / 16.0);
+    const Eigen::Vector3d oc = o - centre;
+    const double b = oc.dot(d);
+    const double cc = oc.squaredNorm() - c.radius * c.radius;
+    const double disc = b * b - cc;
+    if (disc < 0) continue;
+    const double t = -b - std::sqrt(disc);
+    if (t > 0 && (best < 0 || t < best)) best = t;
+  }
+  return best;
+}
+
+}  // namespace
+
+void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
+                                 std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const {
+  const CameraModel& c = camera == 0 ? rig_.left : rig_.right;
+  const Eigen::Isometry3d X_Cam_CamR = camera == 0 ? rig_.X_CamR_CamL.inverse() : Eigen::Isometry3d::Identity();
+  const Eigen::Isometry3d X_Cam_Panel = X_Cam_CamR * X_CamR_Panel;
+  const Eigen::Matrix3d R_Panel_Cam = X_Cam_Panel.linear().transpose();
+  const Eigen::Vector3d o_Panel = -(R_Panel_Cam * X_Cam_Panel.translation());
+  const Eigen::Vector3d light_Panel = (R_Panel_Cam * X_Cam_CamR.linear() * settings_.light_CamR).normalized();
+  std::vector<Occluder> occ_Cam;
+  for (const auto& o : occluders) occ_Cam.push_back(Occluder{X_Cam_CamR * o.a_CamR, X_Cam_CamR * o.b_CamR, o.radius, o.grey});
+
+  const cv::Mat& rays = rays_[static_cast<std::size_t>(camera)];
+  cv::Mat fine(rays.rows, rays.cols, CV_32F);
+  const double k = panel.bend;
+  for (int v = 0; v < rays.rows; ++v) {
+    const cv::Vec3f* rr = rays.ptr<cv::Vec3f>(v);
+    float* row = fine.ptr<float>(v);
+    for (int u = 0; u < rays.cols; ++u) {
+      const Eigen::Vector3d d_Cam(rr[u][0], rr[u][1], rr[u][2]);
+      const Eigen::Vector3d d = R_Panel_Cam * d_Cam;
+      // o + t d on z = -k x^2:  k dx^2 t^2 + (2 k ox dx + dz) t + (k ox^2 + oz) = 0
+      double t = -1;
+      const double A = k * d.x() * d.x(), B = 2 * k * o_Panel.x() * d.x() + d.z(),
+                   C = k * o_Panel.x() * o_Panel.x() + o_Panel.z();
+      if (std::abs(A) < 1e-12) {
+        if (std::abs(B) > 1e-12) t = -C / B;
+      } else {
+        const double disc = B * B - 4 * A * C;
+        if (disc >= 0) {
+          const double s = std::sqrt(disc);
+          const double t1 = (-B - s) / (2 * A), t2 = (-B + s) / (2 * A);
+          t = t1 > 0 ? (t2 > 0 ? std::min(t1, t2) : t1) : t2;
+        }
+      }
+      double grey = settings_.background_grey;
+      double depth = 1e9;
+      if (t > 0) {
+        const Eigen::Vector3d p = o_Panel + t * d;
+        if (panel.solid(p.x(), p.y())) {
+          const double lambert = std::max(0.0, panel.normal(p.x()).dot(light_Panel));
+          grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(p.x(), p.y());
+          depth = t;
+        }
+      }
+      for (const auto& o : occ_Cam) {
+        const double to = hit_capsule(Eigen::Vector3d::Zero(), d_Cam, o);
+        if (to > 0 && to < depth) {
+          depth = to;
+          grey = o.grey;
+        }
+      }
+      row[u] = static_cast<float>(grey * exposure);
+    }
+  }
+  cv::Mat image;
+  cv::reduce(fine.reshape(1, c.width * c.height), image, 1, cv::REDUCE_AVG);  // the samples' mean, per pixel
+  image = image.reshape(1, c.height);
+  if (settings_.blur_sigma_px > 0) cv::GaussianBlur(image, image, cv::Size(0, 0), settings_.blur_sigma_px);
+  if (settings_.noise_sigma > 0) {
+    cv::RNG rng(seed * 2 + static_cast<std::uint64_t>(camera) + 1);
+    cv::Mat noise(image.size(), CV_32F);
+    rng.fill(noise, cv::RNG::NORMAL, 0.0, settings_.noise_sigma);
+    image += noise;
+  }
+  image.convertTo(out, CV_8U);  // rounds and saturates
+}
+
+void StereoRenderer::render(const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,
+                            const std::vector<Occluder>& occluders, cv::Mat& left, cv::Mat& right) const {
+  render_view(0, panel, X_CamR_Panel, exposure, seed, occluders, left);
+  render_view(1, panel, X_CamR_Panel, exposure, seed, occluders, right);
+}
+
+}  // namespace markcell::vision

@@ -19,6 +19,28 @@ bool PanelShape::solid(double x, double y) const {
   return true;
 }
 
+double intersect_panel(const PanelShape& panel, const Eigen::Vector3d& o, const Eigen::Vector3d& d) {
+  // o + t d on z = -k x^2:  k dx^2 t^2 + (2 k ox dx + dz) t + (k ox^2 + oz) = 0
+  const double k = panel.bend;
+  const double A = k * d.x() * d.x(), B = 2 * k * o.x() * d.x() + d.z(), C = k * o.x() * o.x() + o.z();
+  double t = -1;
+  if (std::abs(A) < 1e-12) {
+    if (std::abs(B) > 1e-12) t = -C / B;
+  } else {
+    const double disc = B * B - 4 * A * C;
+    if (disc >= 0) {
+      const double s = std::sqrt(disc);
+      const double t1 = (-B - s) / (2 * A), t2 = (-B + s) / (2 * A);
+      // The nearer crossing in front; if it falls in a hole, the sheet bends away and
+      // the farther one is outside the outline in every panel here.
+      t = t1 > 0 ? (t2 > 0 ? std::min(t1, t2) : t1) : t2;
+    }
+  }
+  if (t <= 0) return -1;
+  const Eigen::Vector3d p = o + t * d;
+  return panel.solid(p.x(), p.y()) ? t : -1;
+}
+
 PanelShape door_shape() {
   PanelShape p;
   p.name = "door";
@@ -174,36 +196,20 @@ void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eige
 
   const cv::Mat& rays = rays_[static_cast<std::size_t>(camera)];
   cv::Mat fine(rays.rows, rays.cols, CV_32F);
-  const double k = panel.bend;
   for (int v = 0; v < rays.rows; ++v) {
     const cv::Vec3f* rr = rays.ptr<cv::Vec3f>(v);
     float* row = fine.ptr<float>(v);
     for (int u = 0; u < rays.cols; ++u) {
       const Eigen::Vector3d d_Cam(rr[u][0], rr[u][1], rr[u][2]);
       const Eigen::Vector3d d = R_Panel_Cam * d_Cam;
-      // o + t d on z = -k x^2:  k dx^2 t^2 + (2 k ox dx + dz) t + (k ox^2 + oz) = 0
-      double t = -1;
-      const double A = k * d.x() * d.x(), B = 2 * k * o_Panel.x() * d.x() + d.z(),
-                   C = k * o_Panel.x() * o_Panel.x() + o_Panel.z();
-      if (std::abs(A) < 1e-12) {
-        if (std::abs(B) > 1e-12) t = -C / B;
-      } else {
-        const double disc = B * B - 4 * A * C;
-        if (disc >= 0) {
-          const double s = std::sqrt(disc);
-          const double t1 = (-B - s) / (2 * A), t2 = (-B + s) / (2 * A);
-          t = t1 > 0 ? (t2 > 0 ? std::min(t1, t2) : t1) : t2;
-        }
-      }
       double grey = settings_.background_grey;
       double depth = 1e9;
+      const double t = intersect_panel(panel, o_Panel, d);
       if (t > 0) {
         const Eigen::Vector3d p = o_Panel + t * d;
-        if (panel.solid(p.x(), p.y())) {
-          const double lambert = std::max(0.0, panel.normal(p.x()).dot(light_Panel));
-          grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(p.x(), p.y());
-          depth = t;
-        }
+        const double lambert = std::max(0.0, panel.normal(p.x()).dot(light_Panel));
+        grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(p.x(), p.y());
+        depth = t;
       }
       for (const auto& o : occ_Cam) {
         const double to = hit_capsule(Eigen::Vector3d::Zero(), d_Cam, o);

@@ -44,6 +44,10 @@ struct PanelShape {
   bool solid(double x, double y) const;
 };
 
+// Where the ray o + t d (panel frame, t > 0) first meets the panel's surface, if it meets
+// panel material: the distance t, or a negative value. `d` need not be unit length.
+double intersect_panel(const PanelShape& panel, const Eigen::Vector3d& o_Panel, const Eigen::Vector3d& d_Panel);
+
 // The paper's two panels, with 10 macro-features each.
 PanelShape door_shape();
 PanelShape fender_shape();

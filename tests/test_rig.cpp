@@ -1,0 +1,175 @@
+// The rig's line motion and its scoring, against closed-form answers.
+#include <catch2/catch.hpp>
+#include <cmath>
+
+#include "markcell/host/rig/line_motion.hpp"
+#include "markcell/host/rig/scoring.hpp"
+
+using namespace markcell;
+using namespace markcell::host::rig;
+
+namespace {
+
+Eigen::Isometry3d facing(double x, double y, double z) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = Eigen::Vector3d(1, -1, -1).asDiagonal();
+  X.translation() = Eigen::Vector3d(x, y, z);
+  return X;
+}
+
+}  // namespace
+
+TEST_CASE("constant speed: distance is speed times time") {
+  SpeedProfile s;
+  s.min_speed = s.max_speed = 0.014;
+  const LineMotion m(s, LinePath{}, seconds(36));
+  CHECK(m.distance(seconds(36)) == Approx(0.014 * 36).epsilon(1e-9));
+  CHECK(m.distance(millis(12'500)) == Approx(0.014 * 12.5).epsilon(1e-9));
+  CHECK(m.X_Line_Panel(seconds(10)).translation().x() == Approx(0.14).epsilon(1e-9));
+  CHECK(m.X_Line_Panel(seconds(10)).linear().isIdentity());
+}
+
+TEST_CASE("fluctuating speed stays in its band, is the same for the same seed, differs for another") {
+  SpeedProfile s;
+  s.kind = SpeedKind::kFluctuating;
+  s.min_speed = 0.012;
+  s.max_speed = 0.016;
+  s.seed = 5;
+  const LineMotion a(s, LinePath{}, seconds(36)), b(s, LinePath{}, seconds(36));
+  s.seed = 6;
+  const LineMotion c(s, LinePath{}, seconds(36));
+  double lo = 1, hi = 0;
+  bool differs = false;
+  for (Nanos t = 0; t <= seconds(36); t += millis(1)) {
+    lo = std::min(lo, a.speed(t));
+    hi = std::max(hi, a.speed(t));
+    CHECK(a.distance(t) == b.distance(t));
+    differs |= a.speed(t) != c.speed(t);
+  }
+  CHECK(lo >= 0.012);
+  CHECK(hi <= 0.016);
+  CHECK(hi - lo > 0.002);  // it does fluctuate, over most of the band
+  CHECK(differs);
+  const double mean = a.distance(seconds(36)) / 36;
+  CHECK(mean > 0.012);
+  CHECK(mean < 0.016);
+}
+
+TEST_CASE("stop-and-go: stops, runs at full speed, never accelerates harder than allowed") {
+  SpeedProfile s;
+  s.kind = SpeedKind::kStopAndGo;
+  s.max_speed = 0.15;
+  s.accel = 0.3;
+  s.stop_and_go_run_s = 3;
+  s.stop_and_go_stop_s = 1.5;
+  const LineMotion m(s, LinePath{}, seconds(20));
+  bool stopped = false, full = false;
+  for (Nanos t = millis(1); t <= seconds(20); t += millis(1)) {
+    stopped |= m.speed(t) == 0.0 && t > seconds(4);
+    full |= m.speed(t) == 0.15;
+    CHECK(std::abs(m.speed(t) - m.speed(t - millis(1))) <= 0.3e-3 + 1e-15);
+  }
+  CHECK(stopped);
+  CHECK(full);
+}
+
+TEST_CASE("a curved section turns the panel about the vertical axis on a circle") {
+  SpeedProfile s;
+  s.min_speed = s.max_speed = 0.02;
+  LinePath path;
+  path.curve_start_m = 0.2;
+  path.curvature = 0.5;  // radius 2 m, towards the cameras
+  const LineMotion m(s, path, seconds(40));
+  // Straight for the first 10 s.
+  CHECK(m.heading(seconds(10)) == 0.0);
+  const Eigen::Isometry3d straight = m.X_Line_Panel(seconds(5));
+  CHECK(straight.translation().isApprox(Eigen::Vector3d(0.1, 0, 0), 1e-9));
+  // Then an arc: centre at (0.2, 0, 2); heading = k (s - 0.2).
+  for (Nanos t : {seconds(15), seconds(25), seconds(40)}) {
+    const double sd = m.distance(t);
+    const Eigen::Isometry3d X = m.X_Line_Panel(t);
+    CHECK((X.translation() - Eigen::Vector3d(0.2, 0, 2.0)).norm() == Approx(2.0).epsilon(1e-9));
+    CHECK(m.heading(t) == Approx(0.5 * (sd - 0.2)).epsilon(1e-12));
+    // The panel's x axis is the path's tangent; y stays vertical.
+    const double th = m.heading(t);
+    CHECK(X.linear().col(0).isApprox(Eigen::Vector3d(std::cos(th), 0, std::sin(th)), 1e-12));
+    CHECK(X.linear().col(1).isApprox(Eigen::Vector3d::UnitY(), 1e-12));
+  }
+}
+
+namespace {
+
+// A nozzle `standoff` in front of panel point (x, y) (flat panel), looking straight at it.
+Spray nozzle_over(const Eigen::Isometry3d& X_CamR_Panel, double x, double y, double standoff, Nanos t = 0) {
+  Eigen::Isometry3d X_Panel_Nozzle = Eigen::Isometry3d::Identity();
+  X_Panel_Nozzle.translation() = Eigen::Vector3d(x, y, standoff);
+  return Spray{t, X_CamR_Panel * X_Panel_Nozzle};
+}
+
+}  // namespace
+
+TEST_CASE("scoring: hit, miss, false spray, spray through a hole, skipped defect") {
+  markcell::vision::PanelShape door = markcell::vision::door_shape();
+  door.bend = 0;
+  const Eigen::Isometry3d X = facing(-0.2, 0.0, 3.1);
+  const auto still = [&](Nanos) { return X; };
+  const std::vector<TrueDefect> defects = {{1, {0.1, -0.1, 0}}, {2, {-0.2, -0.25, 0}}, {3, {0.4, 0.25, 0}}};
+  const std::vector<Spray> sprays = {
+      nozzle_over(X, 0.105, -0.1, 0.2),      // 5 mm from defect 1: hit
+      nozzle_over(X, -0.2, -0.235, 0.2),     // 15 mm from defect 2: miss, a false spray
+      nozzle_over(X, 0.0, 0.2, 0.2),         // into the window opening: not on the panel
+  };
+  const Score s = score_sprays(door, still, defects, sprays, {{3, "beyond the arm's reach before the panel leaves"}}, 0.010);
+  REQUIRE(s.sprays.size() == 3);
+  CHECK(s.sprays[0].hit);
+  CHECK(s.sprays[0].nearest_defect == 1);
+  CHECK(s.sprays[0].distance == Approx(0.005).epsilon(1e-9));
+  CHECK(s.sprays[0].p_CamR.isApprox(X * Eigen::Vector3d(0.105, -0.1, 0), 1e-12));
+  CHECK_FALSE(s.sprays[1].hit);
+  CHECK(s.sprays[1].distance == Approx(0.015).epsilon(1e-9));
+  CHECK_FALSE(s.sprays[2].on_panel);
+  CHECK(s.false_sprays == 2);
+  CHECK(s.planned == 2);
+  CHECK(s.marked == 1);
+  CHECK(s.skipped == 1);
+  CHECK(s.defects[2].skipped_reason == "beyond the arm's reach before the panel leaves");
+  CHECK(s.error_max == Approx(0.005).epsilon(1e-9));
+  CHECK(s.error_rms == Approx(0.005).epsilon(1e-9));
+}
+
+TEST_CASE("scoring: the panel where it is at the moment of spraying, tilted nozzles, bent panels") {
+  const markcell::vision::PanelShape door = markcell::vision::door_shape();  // bent: z = -0.12 x^2
+  SpeedProfile speed;
+  speed.min_speed = speed.max_speed = 0.012;  // 12 mm per second
+  LinePath path;
+  path.X_CamR_Line = facing(-0.2, 0.0, 3.1);
+  const LineMotion motion(speed, path, seconds(10));
+  const auto at = [&](Nanos t) { return motion.X_CamR_Panel(t); };
+  const double z03 = door.surface_z(0.3);
+  const std::vector<TrueDefect> defects = {{7, {0.3, 0.0, z03}}};
+  // Aimed where the defect was at t = 0, sprayed at t = 1 s: the panel has moved 12 mm.
+  Spray late = nozzle_over(at(0), 0.3, 0.0, 0.2, seconds(1));
+  // Aimed where it is at t = 1 s.
+  Spray on_time = nozzle_over(at(seconds(1)), 0.3, 0.0, 0.2, seconds(1));
+  // Tilted 20 degrees about the panel's y axis from straight above (0.3 - 0.2 tan 20deg, 0):
+  // lands at x = 0.3 on the bent surface only approximately; compute it in closed form.
+  Eigen::Isometry3d X_Panel_Tilted = Eigen::Isometry3d::Identity();
+  X_Panel_Tilted.linear() = Eigen::AngleAxisd(-20.0 * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  X_Panel_Tilted.translation() = Eigen::Vector3d(0.3 - 0.2 * std::tan(20.0 * M_PI / 180), 0.0, 0.2);
+  const Spray tilted{seconds(1), at(seconds(1)) * X_Panel_Tilted};
+  const Score s = score_sprays(door, at, defects, {late, on_time, tilted}, {}, 0.010);
+  // It lands 12 mm short along x on the bent sheet: (0.288, 0, -k 0.288^2).
+  CHECK(s.sprays[0].distance == Approx(std::hypot(0.012, 0.12 * (0.3 * 0.3 - 0.288 * 0.288))).epsilon(1e-6));
+  CHECK_FALSE(s.sprays[0].hit);
+  CHECK(s.sprays[1].distance < 1e-9);  // straight down onto the bent surface: exactly on it
+  CHECK(s.sprays[1].hit);
+  // Closed form for the tilted axis: from o = (x0, 0, 0.2) along d = (sin a, 0, -cos a),
+  // meet z = -k x^2.
+  const double a = 20.0 * M_PI / 180, k = 0.12, x0 = 0.3 - 0.2 * std::tan(a);
+  const double A = k * std::sin(a) * std::sin(a), B = 2 * k * x0 * std::sin(a) - std::cos(a), C = k * x0 * x0 + 0.2;
+  const double t = (-B - std::sqrt(B * B - 4 * A * C)) / (2 * A);
+  const Eigen::Vector3d expected(x0 + t * std::sin(a), 0.0, 0.2 - t * std::cos(a));
+  CHECK(s.sprays[2].distance == Approx((expected - defects[0].p_Panel).norm()).epsilon(1e-9));
+  CHECK(s.marked == 1);
+  CHECK(s.false_sprays == 1);
+}

@@ -173,3 +173,59 @@ TEST_CASE("scoring: the panel where it is at the moment of spraying, tilted nozz
   CHECK(s.marked == 1);
   CHECK(s.false_sprays == 1);
 }
+
+#include "markcell/host/rig/inspection.hpp"
+#include "markcell/vision/geometry.hpp"
+#include "test_files.hpp"
+
+TEST_CASE("the inspection station's record: macro-features as its scanner triangulates them, defects as point clusters") {
+  const auto scanner = markcell::vision::load_stereo_calibration(markcell::test::source_path("config/calibration/inspection_stereo.yaml"));
+  const markcell::vision::PanelShape door = markcell::vision::door_shape();
+  // The panel 2 m in front of the scanner, between its cameras, a little turned.
+  Eigen::Isometry3d X_SL_Panel = facing(0.15, 0.02, 2.0);
+  X_SL_Panel.linear() = X_SL_Panel.linear() * Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const std::vector<DefectSpec> defects = {{1, 0.1, -0.1}, {2, -0.25, -0.2}, {3, 0.35, 0.25}};
+  for (std::size_t i = 0; i < door.macro_features.size(); ++i) {  // the scanner sees every macro-feature
+    const Eigen::Vector3d p = X_SL_Panel * door.macro_features[i];
+    const Eigen::Vector2d xl = markcell::vision::project_point(scanner.left, p);
+    const Eigen::Vector2d xr = markcell::vision::project_point(scanner.right, scanner.X_CamR_CamL * p);
+    CHECK((xl.x() > 0 && xl.x() < 1392 && xl.y() > 0 && xl.y() < 1040));
+    CHECK((xr.x() > 0 && xr.x() < 1392 && xr.y() > 0 && xr.y() < 1040));
+  }
+  InspectionNoise none;
+  none.pixel_sigma = 0;
+  none.depth_sigma = 0;
+  const InspectionRecord exact = simulate_inspection("P0001", door, defects, scanner, X_SL_Panel, none, 1);
+  REQUIRE(exact.macro_features_SL.size() == 10);
+  for (std::size_t i = 0; i < 10; ++i) CHECK((exact.macro_features_SL[i] - X_SL_Panel * door.macro_features[i]).norm() < 1e-9);
+  REQUIRE(exact.defects.size() == 3);
+  for (std::size_t d = 0; d < 3; ++d) {
+    REQUIRE(exact.defects[d].points_SL.size() == 60);
+    for (const auto& p_SL : exact.defects[d].points_SL) {
+      const Eigen::Vector3d p = X_SL_Panel.inverse() * p_SL;
+      CHECK(std::hypot(p.x() - defects[d].x, p.y() - defects[d].y) <= none.ding_radius + 1e-6);  // within the ding (plus its slope)
+      const double below = door.surface_z(p.x()) - p.z();  // pressed in, never out
+      CHECK(below >= -1e-12);
+      CHECK(below <= none.ding_depth + 1e-6);
+    }
+  }
+
+  // With the scanner's noise, and the marking station seeing the same panel: fitting the
+  // two macro-feature sets (the inter-calibration of the paper's section III.A) maps the
+  // defects into CamR within millimetres.
+  const InspectionRecord noisy = simulate_inspection("P0001", door, defects, scanner, X_SL_Panel, InspectionNoise{}, 7);
+  const Eigen::Isometry3d X_CamR_Panel = facing(-0.2225, 0.0, 3.1);
+  std::vector<Eigen::Vector3d> mf_CamR;
+  for (const auto& mf : door.macro_features) mf_CamR.push_back(X_CamR_Panel * mf);
+  const auto fit = markcell::vision::fit_rigid(noisy.macro_features_SL, mf_CamR);
+  REQUIRE(fit.valid);
+  CHECK(fit.rms > 0);
+  CHECK(fit.rms < 0.004);
+  const Eigen::Isometry3d X_CamR_SL_true = X_CamR_Panel * X_SL_Panel.inverse();
+  for (std::size_t d = 0; d < 3; ++d) {
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const auto& p : noisy.defects[d].points_SL) centroid += p;
+    centroid /= 60.0;
+    CHECK((fit.X_B_A * centroid - X_CamR_SL_true * centroid).norm() < 0.005);
+  }
+}

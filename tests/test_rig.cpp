@@ -229,3 +229,67 @@ TEST_CASE("the inspection station's record: macro-features as its scanner triang
     CHECK((fit.X_B_A * centroid - X_CamR_SL_true * centroid).norm() < 0.005);
   }
 }
+
+#include "markcell/host/rig/scenario.hpp"
+#include "markcell/vision/recording.hpp"
+
+TEST_CASE("scenarios: every name is known, unknown names are listed, drops are deterministic") {
+  for (const auto& name : scenario_names()) {
+    const Scenario s = make_scenario(name, 3);
+    CHECK(s.name == name);
+    CHECK_FALSE(s.defects.empty());
+    for (const auto& d : s.defects) CHECK(markcell::vision::panel_shape(s.panel_type).solid(d.x, d.y));
+  }
+  CHECK(make_scenario("nine-defects", 1).defects.size() == 9);
+  CHECK(make_scenario("paper-fender", 1).defects.size() == 4);
+  CHECK_THROWS_WITH(make_scenario("paper-dor", 1),
+                    "unknown scenario 'paper-dor' (known: paper-door, paper-fender, paper-curved, line-fast, "
+                    "occlusion-person, frame-drops, nine-defects)");
+  const Scenario drops = make_scenario("frame-drops", 11);
+  int dropped = 0;
+  for (std::uint64_t i = 0; i < 20'000; ++i) dropped += frame_dropped(drops, i) ? 1 : 0;
+  CHECK(dropped > 20'000 * 0.085 + 15);
+  CHECK(dropped < 20'000 * 0.115 + 15);
+  for (std::uint64_t i = 300; i < 315; ++i) CHECK(frame_dropped(drops, i));
+  CHECK_FALSE(frame_dropped(make_scenario("paper-door", 11), 300));
+}
+
+TEST_CASE("a scenario generates the same recording twice, with its truth and the inspection record") {
+  namespace v = markcell::vision;
+  const auto marking = v::load_stereo_calibration(markcell::test::source_path("config/calibration/marking_stereo.yaml"));
+  const auto scanner = v::load_stereo_calibration(markcell::test::source_path("config/calibration/inspection_stereo.yaml"));
+  markcell::test::TempDir dir;
+  const Scenario s = make_scenario("paper-door", 21);
+  GenerateOptions o;
+  o.max_duration = seconds(1);
+  o.fps = 5;
+  const std::string a = (dir.path() / "a").string(), b = (dir.path() / "b").string();
+  REQUIRE(generate_recording(s, a, marking, scanner, v::RenderSettings{}, o) == 6);
+  REQUIRE(generate_recording(s, b, marking, scanner, v::RenderSettings{}, o) == 6);
+  const v::Recording ra = v::Recording::open(a), rb = v::Recording::open(b);
+  REQUIRE(ra.size() == 6);
+  CHECK(ra.manifest().scenario == "paper-door");
+  CHECK(ra.manifest().seed == std::optional<std::uint64_t>(21));
+  const LineMotion motion(s.speed, s.path, s.duration);
+  for (std::size_t i = 0; i < 6; ++i) {
+    const auto fa = ra.read(i), fb = rb.read(i);
+    REQUIRE_FALSE(fa.dropped);
+    CHECK(fa.time == static_cast<Nanos>(i) * 200'000'000LL);
+    CHECK(cv::norm(fa.left, fb.left, cv::NORM_INF) == 0);
+    CHECK(cv::norm(fa.right, fb.right, cv::NORM_INF) == 0);
+    CHECK((ra.truth()[i].X_CamR_Panel.matrix() - motion.X_CamR_Panel(fa.time).matrix()).norm() < 1e-9);
+  }
+  CHECK(markcell::test::read_file(a + "/truth.csv") == markcell::test::read_file(b + "/truth.csv"));
+  CHECK(markcell::test::read_file(a + "/inspection.yaml") == markcell::test::read_file(b + "/inspection.yaml"));
+  REQUIRE(ra.defects().size() == 3);
+  CHECK(ra.defects()[0].p_Panel.isApprox(v::door_shape().surface_point(0.12, -0.12), 1e-12));
+  CHECK(v::load_stereo_calibration(ra.calibration_path()).baseline() == Approx(0.445));
+  // The first frame: the door's macro-features in view, where the truth puts them.
+  const v::StereoRenderer r(marking, v::RenderSettings{});
+  int visible = 0;
+  for (const auto& mf : v::door_shape().macro_features) {
+    const Eigen::Vector2d px = r.project(1, ra.truth()[0].X_CamR_Panel * mf);
+    visible += px.x() >= 0 && px.x() < 640 && px.y() >= 0 && px.y() < 480;
+  }
+  CHECK(visible >= 8);
+}

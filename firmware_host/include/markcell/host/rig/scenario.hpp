@@ -1,0 +1,66 @@
+#pragma once
+// The rig's named scenarios, each generated deterministically from a seed, and the
+// generator that turns one into a recording (vision/RECORDING.md) with its ground truth
+// and the inspection station's record.
+//
+//   paper-door        the paper's door: 3 dings, sled 1.2-1.6 cm/s fluctuating, 36 s
+//   paper-fender      the fender: 4 defects, same line
+//   paper-curved      the door on a rotated sled (a curved line section, about Y0)
+//   line-fast         a real line: 15 cm/s +-10 %, the door crossing the whole view
+//   occlusion-person  paper-door with a person walking through the view
+//   frame-drops       paper-door with frames lost (10 %, and a burst of 15)
+//   nine-defects      the door with 9 dings about 30 cm apart (the paper's capacity)
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "markcell/common/time.hpp"
+#include "markcell/host/rig/inspection.hpp"
+#include "markcell/host/rig/line_motion.hpp"
+#include "markcell/vision/render.hpp"
+
+namespace markcell::host::rig {
+
+struct PersonWalk {
+  Nanos enter = 0, leave = 0;      // crossing the view between these times
+  Eigen::Vector3d from_CamR, to_CamR;  // the person's feet-to-head axis moves between these points (its middle)
+};
+
+struct Scenario {
+  std::string name;
+  std::string panel_type;
+  std::uint64_t seed = 1;
+  double fps = 30.0;
+  Nanos duration = seconds(36);
+  SpeedProfile speed;
+  LinePath path;
+  std::vector<DefectSpec> defects;
+  std::vector<PersonWalk> people;
+  double drop_ratio = 0.0;                 // frames lost at random
+  std::uint64_t drop_burst_start = 0, drop_burst_length = 0;  // and a burst of lost frames
+  double exposure_drift = 0.04;            // relative amplitude of a slow exposure drift
+  Eigen::Isometry3d X_SL_Panel = Eigen::Isometry3d::Identity();  // the panel at the inspection station
+  InspectionNoise inspection;
+};
+
+const std::vector<std::string>& scenario_names();
+// Throws std::invalid_argument naming the known scenarios for an unknown name.
+Scenario make_scenario(const std::string& name, std::uint64_t seed);
+
+struct GenerateOptions {
+  Nanos max_duration = -1;   // shorten the scenario (tests); -1: whole
+  double fps = -1;           // override the frame rate; -1: the scenario's
+};
+
+// Writes the scenario to `folder` as a recording: frames (those not dropped), truth,
+// defects, the stereo calibration used, and inspection.yaml. Returns the frames written.
+std::size_t generate_recording(const Scenario& scenario, const std::string& folder,
+                               const vision::StereoCalibration& marking, const vision::StereoCalibration& scanner,
+                               const vision::RenderSettings& render, const GenerateOptions& options = {});
+
+// Whether frame `index` of the scenario is lost (deterministic from its seed).
+bool frame_dropped(const Scenario& scenario, std::uint64_t index);
+
+}  // namespace markcell::host::rig

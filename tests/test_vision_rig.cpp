@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <cstdio>
 #include <random>
 
 #include <Eigen/Geometry>
@@ -265,4 +266,61 @@ TEST_CASE("bad frames are reported with their index and dropped, never a crash")
 
   std::filesystem::remove(folder + "/recording.yaml");
   CHECK_THROWS_WITH(Recording::open(folder), folder + "/recording.yaml: missing (is " + folder + " a recording?)");
+}
+
+TEST_CASE("calibrate-stereo recovers a known rig from rendered chessboard views") {
+  const StereoCalibration truth = paper_rig();
+  const StereoRenderer r(truth, RenderSettings{});
+  test::TempDir dir;
+  std::mt19937 rng(17);
+  // Board centres where both views see the whole board, tilted up to about 23 degrees.
+  std::uniform_real_distribution<double> x(-0.35, -0.10), y(-0.2, 0.2), z(2.4, 3.1), tilt(-0.4, 0.4);
+  const int cols = 9, rows = 6;
+  const double square = 0.05;
+  for (int i = 0; i < 14; ++i) {
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() = (Eigen::AngleAxisd(tilt(rng), Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(tilt(rng), Eigen::Vector3d::UnitY()))
+                     .toRotationMatrix() * Eigen::Vector3d(1, -1, -1).asDiagonal();
+    const Eigen::Vector3d centre(x(rng), y(rng), z(rng));
+    X.translation() = centre - X.linear() * Eigen::Vector3d((cols - 1) * square / 2, (rows - 1) * square / 2, 0);
+    cv::Mat left, right;
+    r.render_board(cols, rows, square, X, static_cast<std::uint64_t>(i), left, right);
+    char name[32];
+    std::snprintf(name, sizeof name, "view%02d", i);
+    cv::imwrite((dir.path() / (std::string(name) + "_left.png")).string(), left);
+    cv::imwrite((dir.path() / (std::string(name) + "_right.png")).string(), right);
+  }
+  // A view without the board, and an image without its partner.
+  const cv::Mat empty(480, 640, CV_8UC1, cv::Scalar(40));
+  cv::imwrite((dir.path() / "noboard_left.png").string(), empty);
+  cv::imwrite((dir.path() / "noboard_right.png").string(), empty);
+  cv::imwrite((dir.path() / "lonely_left.png").string(), empty);
+  const std::string out = (dir.path() / "stereo.yaml").string();
+  const auto run = test::run_command(std::string(MARKCELL_BINARY) + " calibrate-stereo --images " + dir.path().string() +
+                                     " --board 9x6 --square 0.05 --out " + out);
+  INFO(run.output);
+  REQUIRE(run.exit_code == 0);
+  CHECK(run.output.find("skipped view noboard_.png: board not found in the left image") != std::string::npos);
+  CHECK(run.output.find("unpaired image (skipped): lonely_left.png") != std::string::npos);
+  CHECK(run.output.find("views used: 14") != std::string::npos);
+  CHECK(run.output.find("RMS reprojection error: ") != std::string::npos);
+  CHECK(run.output.find("mean epipolar error: ") != std::string::npos);
+  const StereoCalibration got = load_stereo_calibration(out);
+  CHECK(got.baseline() == Approx(0.445).epsilon(0.005));  // within 2.2 mm
+  for (const CameraModel* c : {&got.left, &got.right}) {
+    CHECK(c->K(0, 0) == Approx(truth.right.K(0, 0)).epsilon(0.01));
+    CHECK(c->K(1, 1) == Approx(truth.right.K(1, 1)).epsilon(0.01));
+    CHECK(std::abs(c->K(0, 2) - 319.5) < 5.0);
+    CHECK(std::abs(c->K(1, 2) - 239.5) < 5.0);
+  }
+  const Eigen::AngleAxisd dR(got.X_CamR_CamL.linear() * truth.X_CamR_CamL.linear().transpose());
+  CHECK(dR.angle() < 0.2 * M_PI / 180);
+  // Too few views: the command says how many it had and needed.
+  test::TempDir few;
+  cv::imwrite((few.path() / "a_left.png").string(), empty);
+  cv::imwrite((few.path() / "a_right.png").string(), empty);
+  const auto fail = test::run_command(std::string(MARKCELL_BINARY) + " calibrate-stereo --images " + few.path().string() +
+                                      " --board 9x6 --square 0.07 --out " + (few.path() / "x.yaml").string());
+  CHECK(fail.exit_code == 1);
+  CHECK(fail.output.find("only 0 usable view(s), at least 6 needed; a_.png: board not found in the left image") != std::string::npos);
 }

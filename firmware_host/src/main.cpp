@@ -14,6 +14,7 @@
 #include "markcell/host/bench.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/vision/stereo_calibration.hpp"
 
 namespace {
 
@@ -101,6 +102,45 @@ int run_command(const std::string& file, const std::string& clock_name, double s
   return 0;
 }
 
+int calibrate_stereo_command(const std::string& folder, const std::string& board_text, double square,
+                             const std::string& out) {
+  vision::BoardSpec board;
+  char x = 0;
+  if (std::sscanf(board_text.c_str(), "%d%c%d", &board.cols, &x, &board.rows) != 3 || x != 'x' || board.cols < 3 ||
+      board.rows < 3) {
+    std::cerr << "markcell calibrate-stereo: --board '" << board_text << "': expected COLSxROWS inner corners, e.g. 9x6\n";
+    return kExitConfig;
+  }
+  board.square = square;
+  std::vector<std::string> unpaired;
+  std::vector<vision::StereoView> views;
+  try {
+    views = vision::read_stereo_views(folder, unpaired);
+  } catch (const std::exception& e) {
+    std::cerr << "markcell calibrate-stereo: " << folder << ": " << e.what() << "\n";
+    return kExitConfig;
+  }
+  for (const auto& u : unpaired) std::cout << "unpaired image (skipped): " << u << "\n";
+  vision::StereoCalibrationResult r;
+  try {
+    r = vision::calibrate_stereo(views, board);
+  } catch (const vision::CalibrationError& e) {
+    std::cerr << "markcell calibrate-stereo: " << e.what() << "\n";
+    return kExitRuntime;
+  }
+  for (const auto& s : r.skipped) std::cout << "skipped view " << s << "\n";
+  std::printf("views used: %zu\n", r.used.size());
+  for (std::size_t i = 0; i < r.used.size(); ++i) std::printf("  %-24s reprojection RMS %.3f px\n", r.used[i].c_str(), r.view_errors[i]);
+  std::printf("RMS reprojection error: %.3f px\n", r.rms);
+  std::printf("mean epipolar error: %.3f px\n", r.epipolar_error);
+  std::printf("baseline: %.4f m\n", r.calibration.baseline());
+  std::printf("focal lengths: left %.2f %.2f px, right %.2f %.2f px\n", r.calibration.left.K(0, 0), r.calibration.left.K(1, 1),
+              r.calibration.right.K(0, 0), r.calibration.right.K(1, 1));
+  vision::save_stereo_calibration(out, r.calibration);
+  std::cout << "wrote " << out << "\n";
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -122,6 +162,14 @@ int main(int argc, char** argv) {
   run->add_option("--seconds", run_seconds, "Stop after this long (0: until a signal; needed with --clock sim)")
       ->check(CLI::NonNegativeNumber);
 
+  std::string cal_images, cal_board = "9x6", cal_out;
+  double cal_square = 0.04;
+  auto* calibrate = app.add_subcommand("calibrate-stereo", "Calibrate a stereo pair from chessboard image pairs (*left* / *right* names)");
+  calibrate->add_option("--images", cal_images, "Folder of image pairs: NAMEleftX.png with NAMErightX.png")->required()->check(CLI::ExistingDirectory);
+  calibrate->add_option("--board", cal_board, "Inner corners, COLSxROWS")->required();
+  calibrate->add_option("--square", cal_square, "Square size in metres")->required()->check(CLI::PositiveNumber);
+  calibrate->add_option("--out", cal_out, "Calibration file to write (OpenCV FileStorage YAML)")->required();
+
   auto* bench = app.add_subcommand("bench", "Benchmarks");
   bench->require_subcommand(1);
   LoopBenchOptions loop_options;
@@ -142,6 +190,7 @@ int main(int argc, char** argv) {
 
   try {
     if (*check) return check_config_command(check_file);
+    if (*calibrate) return calibrate_stereo_command(cal_images, cal_board, cal_square, cal_out);
     if (*run) {
       if (clock_name == "sim" && run_seconds <= 0) {
         std::cerr << "markcell run: --clock sim needs --seconds (simulated time has no signal to stop it)\n";

@@ -183,17 +183,17 @@ double hit_capsule(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Occ
 
 }  // namespace
 
-void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
-                                 std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const {
+// Casts every sample ray of `camera` in the object's frame; `shade(o, d, d_Cam)` returns
+// the grey of a ray (origin o and direction d in the object's frame, d_Cam in the
+// camera's). Then averages the samples, blurs, exposes and adds the seeded noise.
+template <typename Shade>
+void StereoRenderer::cast(int camera, const Eigen::Isometry3d& X_CamR_Object, std::uint64_t seed, double exposure,
+                          Shade&& shade, cv::Mat& out) const {
   const CameraModel& c = camera == 0 ? rig_.left : rig_.right;
   const Eigen::Isometry3d X_Cam_CamR = camera == 0 ? rig_.X_CamR_CamL.inverse() : Eigen::Isometry3d::Identity();
-  const Eigen::Isometry3d X_Cam_Panel = X_Cam_CamR * X_CamR_Panel;
-  const Eigen::Matrix3d R_Panel_Cam = X_Cam_Panel.linear().transpose();
-  const Eigen::Vector3d o_Panel = -(R_Panel_Cam * X_Cam_Panel.translation());
-  const Eigen::Vector3d light_Panel = (R_Panel_Cam * X_Cam_CamR.linear() * settings_.light_CamR).normalized();
-  std::vector<Occluder> occ_Cam;
-  for (const auto& o : occluders) occ_Cam.push_back(Occluder{X_Cam_CamR * o.a_CamR, X_Cam_CamR * o.b_CamR, o.radius, o.grey});
-
+  const Eigen::Isometry3d X_Cam_Object = X_Cam_CamR * X_CamR_Object;
+  const Eigen::Matrix3d R_Object_Cam = X_Cam_Object.linear().transpose();
+  const Eigen::Vector3d o = -(R_Object_Cam * X_Cam_Object.translation());
   const cv::Mat& rays = rays_[static_cast<std::size_t>(camera)];
   cv::Mat fine(rays.rows, rays.cols, CV_32F);
   for (int v = 0; v < rays.rows; ++v) {
@@ -201,24 +201,7 @@ void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eige
     float* row = fine.ptr<float>(v);
     for (int u = 0; u < rays.cols; ++u) {
       const Eigen::Vector3d d_Cam(rr[u][0], rr[u][1], rr[u][2]);
-      const Eigen::Vector3d d = R_Panel_Cam * d_Cam;
-      double grey = settings_.background_grey;
-      double depth = 1e9;
-      const double t = intersect_panel(panel, o_Panel, d);
-      if (t > 0) {
-        const Eigen::Vector3d p = o_Panel + t * d;
-        const double lambert = std::max(0.0, panel.normal(p.x()).dot(light_Panel));
-        grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(p.x(), p.y());
-        depth = t;
-      }
-      for (const auto& o : occ_Cam) {
-        const double to = hit_capsule(Eigen::Vector3d::Zero(), d_Cam, o);
-        if (to > 0 && to < depth) {
-          depth = to;
-          grey = o.grey;
-        }
-      }
-      row[u] = static_cast<float>(grey * exposure);
+      row[u] = static_cast<float>(shade(o, R_Object_Cam * d_Cam, d_Cam) * exposure);
     }
   }
   cv::Mat image;
@@ -232,6 +215,53 @@ void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eige
     image += noise;
   }
   image.convertTo(out, CV_8U);  // rounds and saturates
+}
+
+void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
+                                 std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const {
+  const Eigen::Isometry3d X_Cam_CamR = camera == 0 ? rig_.X_CamR_CamL.inverse() : Eigen::Isometry3d::Identity();
+  const Eigen::Matrix3d R_Panel_Cam = (X_Cam_CamR * X_CamR_Panel).linear().transpose();
+  const Eigen::Vector3d light_Panel = (R_Panel_Cam * X_Cam_CamR.linear() * settings_.light_CamR).normalized();
+  std::vector<Occluder> occ_Cam;
+  for (const auto& o : occluders) occ_Cam.push_back(Occluder{X_Cam_CamR * o.a_CamR, X_Cam_CamR * o.b_CamR, o.radius, o.grey});
+  const auto shade = [&](const Eigen::Vector3d& o_Panel, const Eigen::Vector3d& d, const Eigen::Vector3d& d_Cam) {
+    double grey = settings_.background_grey;
+    double depth = 1e9;
+    const double t = intersect_panel(panel, o_Panel, d);
+    if (t > 0) {
+      const Eigen::Vector3d p = o_Panel + t * d;
+      const double lambert = std::max(0.0, panel.normal(p.x()).dot(light_Panel));
+      grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(p.x(), p.y());
+      depth = t;
+    }
+    for (const auto& oc : occ_Cam) {
+      const double to = hit_capsule(Eigen::Vector3d::Zero(), d_Cam, oc);
+      if (to > 0 && to < depth) {
+        depth = to;
+        grey = oc.grey;
+      }
+    }
+    return grey;
+  };
+  cast(camera, X_CamR_Panel, seed, exposure, shade, out);
+}
+
+void StereoRenderer::render_board(int cols, int rows, double square, const Eigen::Isometry3d& X_CamR_Board,
+                                  std::uint64_t seed, cv::Mat& left, cv::Mat& right) const {
+  // Printed black on white, one white square of margin around the pattern.
+  const double x0 = -2 * square, x1 = (cols + 1) * square, y0 = -2 * square, y1 = (rows + 1) * square;
+  const auto shade = [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Eigen::Vector3d&) {
+    if (std::abs(d.z()) < 1e-12) return settings_.background_grey;
+    const double t = -o.z() / d.z();
+    if (t <= 0) return settings_.background_grey;
+    const double x = o.x() + t * d.x(), y = o.y() + t * d.y();
+    if (x < x0 || x > x1 || y < y0 || y > y1) return settings_.background_grey;
+    if (x < -square || x > cols * square || y < -square || y > rows * square) return 220.0;  // margin
+    const auto i = static_cast<long>(std::floor(x / square)), j = static_cast<long>(std::floor(y / square));
+    return ((i + j) & 1) == 0 ? 20.0 : 220.0;
+  };
+  cast(0, X_CamR_Board, seed, 1.0, shade, left);
+  cast(1, X_CamR_Board, seed, 1.0, shade, right);
 }
 
 void StereoRenderer::render(const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,

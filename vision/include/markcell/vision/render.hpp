@@ -78,10 +78,18 @@ class StereoRenderer {
   // nominal); `seed` makes the noise of this frame.
   void render(const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,
               const std::vector<Occluder>& occluders, cv::Mat& left, cv::Mat& right) const;
+  // A flat chessboard (calibration target): `cols` x `rows` inner corners, squares of
+  // `square` metres, one white square of margin; its frame has the first inner corner
+  // at the origin, x along the columns, y along the rows, z out of the printed face.
+  void render_board(int cols, int rows, double square, const Eigen::Isometry3d& X_CamR_Board, std::uint64_t seed,
+                    cv::Mat& left, cv::Mat& right) const;
   // Where the camera model puts a point (camera 0 = left, 1 = right), distortion included.
   Eigen::Vector2d project(int camera, const Eigen::Vector3d& p_CamR) const;
 
  private:
+  template <typename Shade>
+  void cast(int camera, const Eigen::Isometry3d& X_CamR_Object, std::uint64_t seed, double exposure, Shade&& shade,
+            cv::Mat& out) const;
   void render_view(int camera, const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
                    std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const;
   StereoCalibration rig_;

@@ -1,4 +1,5 @@
 #include "markcell/drivers/can_bus.hpp"
+#include "markcell/common/wait.hpp"
 
 #include <linux/can.h>
 #include <linux/can/error.h>
@@ -79,11 +80,9 @@ CanStatus SocketCanBus::send(const CanFrame& f) noexcept {
 
 int SocketCanBus::receive(std::span<CanFrame> out, Nanos timeout) noexcept {
   if (fd_ < 0) return -1;
-  pollfd p{fd_, POLLIN, 0};
-  const timespec ts = to_timespec(timeout > 0 ? timeout : 0);
-  const int ready = ppoll(&p, 1, &ts, nullptr);
-  if (ready < 0) return errno == EINTR ? 0 : -1;
-  if (ready == 0) return 0;
+  const WaitResult w = wait_readable(fd_, timeout);
+  if (w == WaitResult::kTimeout) return 0;
+  if (w != WaitResult::kReadable) return -1;
   int n = 0;
   while (static_cast<std::size_t>(n) < out.size()) {
     canfd_frame raw{};

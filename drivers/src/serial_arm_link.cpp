@@ -50,43 +50,34 @@ ArmLinkStatus SerialArmLink::poll(Nanos now) noexcept {
     const long n = port_.read_some(buf, 0);
     if (n < 0) io_error_ = true;
     if (n <= 0) break;
-    std::span<const std::uint8_t> in(buf.data(), static_cast<std::size_t>(n));
-    // Bounded: each round either consumes input or extracts a frame.
-    for (int rounds = 0; rounds < 64 && (!in.empty() || rounds == 0); ++rounds) {
-      in = in.subspan(decoder_.push(in));
-      serial::Frame frame;
-      for (int f = 0; f < 16; ++f) {
-        const auto r = decoder_.next(frame);
-        if (r == serial::Decoder::Result::kNeedMore) break;
-        if (r != serial::Decoder::Result::kFrame) {
-          ++counters_.decode_errors;
-          continue;
-        }
-        if (frame.type == serial::FrameType::kAck) {
-          std::uint8_t acked = 0;
-          serial::AckResult result{};
-          if (serial::decode_ack(frame, acked, result) != serial::PayloadError::kOk) {
-            ++counters_.decode_errors;
-          } else if (pending_.active && acked == pending_.seq) {
-            pending_.active = false;
-            refused_ = result != serial::AckResult::kAccepted;
-            if (refused_) ++counters_.refusals;
-          }
-        } else if (frame.type == serial::FrameType::kState) {
-          Nanos arm_time = 0;
-          if (serial::decode_state(frame, state_, arm_time) != serial::PayloadError::kOk) {
-            ++counters_.decode_errors;
+    decoder_.consume(
+        std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)),
+        [&](const serial::Frame& frame) {
+          if (frame.type == serial::FrameType::kAck) {
+            std::uint8_t acked = 0;
+            serial::AckResult result{};
+            if (serial::decode_ack(frame, acked, result) != serial::PayloadError::kOk) {
+              ++counters_.decode_errors;
+            } else if (pending_.active && acked == pending_.seq) {
+              pending_.active = false;
+              refused_ = result != serial::AckResult::kAccepted;
+              if (refused_) ++counters_.refusals;
+            }
+          } else if (frame.type == serial::FrameType::kState) {
+            Nanos arm_time = 0;
+            if (serial::decode_state(frame, state_, arm_time) != serial::PayloadError::kOk) {
+              ++counters_.decode_errors;
+            } else {
+              state_.received = now;
+              last_state_ = now;
+              have_state_ = true;
+              ++counters_.states_received;
+            }
           } else {
-            state_.received = now;
-            last_state_ = now;
-            have_state_ = true;
-            ++counters_.states_received;
+            ++counters_.decode_errors;  // a COMMAND has no business arriving here
           }
-        } else {
-          ++counters_.decode_errors;  // a COMMAND has no business arriving here
-        }
-      }
-    }
+        },
+        [&] { ++counters_.decode_errors; });
   }
   if (pending_.active && now - pending_.sent_at > config_.ack_timeout) {
     if (pending_.tries > config_.retries) {

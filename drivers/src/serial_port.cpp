@@ -1,4 +1,5 @@
 #include "markcell/drivers/serial_port.hpp"
+#include "markcell/common/wait.hpp"
 
 #include <fcntl.h>
 #include <poll.h>
@@ -71,12 +72,9 @@ long SerialPort::write_some(std::span<const std::uint8_t> bytes) noexcept {
 
 long SerialPort::read_some(std::span<std::uint8_t> out, Nanos timeout) noexcept {
   if (fd_ < 0) return -1;
-  pollfd p{fd_, POLLIN, 0};
-  const timespec ts = to_timespec(timeout > 0 ? timeout : 0);
-  const int ready = ppoll(&p, 1, &ts, nullptr);
-  if (ready < 0) return errno == EINTR ? 0 : -1;
-  if (ready == 0) return 0;
-  if ((p.revents & POLLIN) == 0 && (p.revents & (POLLHUP | POLLERR)) != 0) return -1;
+  const WaitResult w = wait_readable(fd_, timeout);
+  if (w == WaitResult::kTimeout) return 0;
+  if (w != WaitResult::kReadable) return -1;  // the peer hung up, or the descriptor failed
   const ssize_t n = ::read(fd_, out.data(), out.size());
   if (n < 0) return errno == EAGAIN ? 0 : -1;
   return n;

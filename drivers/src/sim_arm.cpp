@@ -95,31 +95,23 @@ void SimSerialArm::poll(Nanos now) {
   for (int reads = 0; reads < 8; ++reads) {
     const long n = port_.read_some(buf, 0);
     if (n <= 0) break;
-    std::span<const std::uint8_t> in(buf.data(), static_cast<std::size_t>(n));
-    for (int rounds = 0; rounds < 64 && !in.empty(); ++rounds) {
-      in = in.subspan(decoder_.push(in));
-      serial::Frame frame;
-      for (int f = 0; f < 16; ++f) {
-        const auto r = decoder_.next(frame);
-        if (r == serial::Decoder::Result::kNeedMore) break;
-        if (r != serial::Decoder::Result::kFrame) {
-          ++decode_errors_;
-          continue;
-        }
-        ArmCommand command;
-        if (serial::decode_command(frame, command) != serial::PayloadError::kOk) {
-          ++decode_errors_;
-          continue;
-        }
-        ++commands_;
-        const auto result = model_.submit(command, frame.seq, now);
-        if (!drop_acks_) {
-          std::array<std::uint8_t, serial::kMaxFrame> out{};
-          const std::size_t size = serial::encode_ack(frame.seq, result, out);
-          port_.write_some(std::span<const std::uint8_t>(out.data(), size));
-        }
-      }
-    }
+    decoder_.consume(
+        std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)),
+        [&](const serial::Frame& frame) {
+          ArmCommand command;
+          if (serial::decode_command(frame, command) != serial::PayloadError::kOk) {
+            ++decode_errors_;
+            return;
+          }
+          ++commands_;
+          const auto result = model_.submit(command, frame.seq, now);
+          if (!drop_acks_) {
+            std::array<std::uint8_t, serial::kMaxFrame> out{};
+            const std::size_t size = serial::encode_ack(frame.seq, result, out);
+            port_.write_some(std::span<const std::uint8_t>(out.data(), size));
+          }
+        },
+        [&] { ++decode_errors_; });
   }
   model_.step(now);
   if (!silent_ && now >= next_state_) {

@@ -17,26 +17,22 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     const std::size_t chunk = std::min<std::size_t>(size - at, 1 + data[at] % 40);
     std::span<const std::uint8_t> in(data + at, chunk);
     at += chunk;
-    for (int guard = 0; !in.empty() && guard < 1000; ++guard) {
-      in = in.subspan(decoder.push(in));
-      serial::Frame f;
-      for (int n = 0; n < 1000; ++n) {
-        const auto r = decoder.next(f);
-        if (r == serial::Decoder::Result::kNeedMore) break;
-        if (r != serial::Decoder::Result::kFrame) continue;
-        if (f.length > serial::kMaxPayload) std::abort();
-        ArmCommand c;
-        if (serial::decode_command(f, c) == serial::PayloadError::kOk)
-          for (double v : c.target.position) if (!std::isfinite(v)) std::abort();
-        ArmState s;
-        markcell::Nanos t = 0;
-        if (serial::decode_state(f, s, t) == serial::PayloadError::kOk)
-          for (double v : s.tool.rotation) if (!std::isfinite(v)) std::abort();
-        std::uint8_t seq = 0;
-        serial::AckResult result{};
-        (void)serial::decode_ack(f, seq, result);
-      }
-    }
+    decoder.consume(
+        in,
+        [](const serial::Frame& f) {
+          if (f.length > serial::kMaxPayload) std::abort();
+          ArmCommand c;
+          if (serial::decode_command(f, c) == serial::PayloadError::kOk)
+            for (double v : c.target.position) if (!std::isfinite(v)) std::abort();
+          ArmState s;
+          markcell::Nanos t = 0;
+          if (serial::decode_state(f, s, t) == serial::PayloadError::kOk)
+            for (double v : s.tool.rotation) if (!std::isfinite(v)) std::abort();
+          std::uint8_t seq = 0;
+          serial::AckResult result{};
+          (void)serial::decode_ack(f, seq, result);
+        },
+        [] {});
   }
   return 0;
 }

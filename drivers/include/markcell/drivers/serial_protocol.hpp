@@ -74,6 +74,24 @@ class Decoder {
   Result next(Frame& out);
   std::uint64_t discarded_bytes() const { return discarded_; }
 
+  // Feeds `bytes` through the decoder: on_frame(frame) for every complete frame,
+  // on_error() for every malformed one. Bounded by the input's length.
+  template <typename OnFrame, typename OnError>
+  void consume(std::span<const std::uint8_t> bytes, OnFrame&& on_frame, OnError&& on_error) {
+    Frame frame;
+    // Each round takes at least one byte in, or there is nothing left to take.
+    for (std::size_t round = 0; round <= bytes.size(); ++round) {
+      bytes = bytes.subspan(push(bytes));
+      for (std::size_t f = 0; f < 2 * kMaxFrame; ++f) {  // a full buffer holds at most this many results
+        const Result r = next(frame);
+        if (r == Result::kNeedMore) break;
+        if (r == Result::kFrame) on_frame(frame);
+        else on_error();
+      }
+      if (bytes.empty()) break;
+    }
+  }
+
  private:
   void drop(std::size_t n);
   std::array<std::uint8_t, 2 * kMaxFrame> buffer_{};

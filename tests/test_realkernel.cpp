@@ -23,6 +23,7 @@
 #include <thread>
 #include <vector>
 
+#include "alloc_guard.hpp"
 #include "dbc.hpp"
 #include "markcell/control/spray_valve.hpp"
 #include "markcell/drivers/can_arm_link.hpp"
@@ -89,6 +90,28 @@ TEST_CASE("libgpiod on gpio-sim: the example's named lines, outputs requested in
   CHECK(lines.set(kPanelLine, true) == GpioStatus::kWrongDirection);
   lines.deactivate();
   CHECK(sim_value(kValveLine) == 0);  // safe state on deactivate
+}
+
+TEST_CASE("libgpiod on gpio-sim: set, get and event reads allocate nothing once active", "[gpio]") {
+  GpiodLines lines(env("MARKCELL_GPIO_CHIP"));
+  lines.configure(example_requests());
+  lines.activate();
+  std::array<LineEvent, 8> events{};
+  bool v = false;
+  std::size_t allocations = 0;
+  int errors = 0;
+  {
+    test::AllocationGuard guard;
+    for (int i = 0; i < 1000; ++i) {
+      errors += lines.set(kValveLine, (i & 1) != 0) != GpioStatus::kOk;
+      errors += lines.get(kPanelLine, v) != GpioStatus::kOk;
+      errors += lines.read_events(events, 0) < 0;
+    }
+    allocations = guard.allocations();
+  }
+  lines.deactivate();
+  CHECK(errors == 0);
+  CHECK(allocations == 0);
 }
 
 TEST_CASE("PLC inputs: pulls become edge events with kernel timestamps, active-low honoured", "[gpio]") {

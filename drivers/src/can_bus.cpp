@@ -82,7 +82,9 @@ int SocketCanBus::receive(std::span<CanFrame> out, Nanos timeout) noexcept {
   if (fd_ < 0) return -1;
   const WaitResult w = wait_readable(fd_, timeout);
   if (w == WaitResult::kTimeout) return 0;
-  if (w != WaitResult::kReadable) return -1;
+  if (w == WaitResult::kError) return -1;
+  // kHangup on a CAN socket is POLLERR: a pending socket error (ENETDOWN when the
+  // interface goes down) that recv() reports below, and that passes.
   int n = 0;
   while (static_cast<std::size_t>(n) < out.size()) {
     canfd_frame raw{};

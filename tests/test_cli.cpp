@@ -55,9 +55,13 @@ TEST_CASE("run on the simulated clock prints the timing report") {
 
 TEST_CASE("run stops cleanly on SIGTERM and on SIGINT, outputs safe, report printed") {
   for (const char* sig : {"TERM", "INT"}) {
-    // The shell starts the cell on the real clock, signals it after 0.5 s and reports its exit status.
-    const auto r = run_command("( " + kMarkcell + " run --config " + source_path("config/cell.example.yaml") +
-                               " & pid=$!; sleep 0.5; kill -" + sig + " $pid; wait $pid; echo \"exit=$?\" )");
+    // The shell starts the cell on the real clock, waits (up to 30 s) until it says it
+    // runs, signals it, and reports its exit status.
+    markcell::test::TempDir dir;
+    const std::string log = (dir.path() / "log").string();
+    const auto r = run_command("( " + kMarkcell + " run --config " + source_path("config/cell.example.yaml") + " > " + log +
+                               " 2>&1 & pid=$!; for i in $(seq 300); do grep -q 'running on the real clock' " + log +
+                               " && break; sleep 0.1; done; kill -" + sig + " $pid; wait $pid; echo \"exit=$?\"; cat " + log + " )");
     INFO(sig << ": " << r.output);
     CHECK(r.output.find("exit=0") != std::string::npos);
     CHECK(r.output.find(std::string("stopped (SIG") + sig + ")") != std::string::npos);

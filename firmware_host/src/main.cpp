@@ -24,6 +24,18 @@ using namespace markcell::host;
 constexpr int kExitRuntime = 1;
 constexpr int kExitConfig = 2;
 
+// SIGTERM and SIGINT, taken synchronously by the main thread with sigtimedwait. They are
+// blocked first thing in main(): before any lane exists (every thread inherits the
+// mask), and before start-up work, so a stop requested while starting is held and
+// honoured, never lost (a background job of a shell even starts with SIGINT ignored).
+sigset_t stop_signals() {
+  sigset_t s;
+  sigemptyset(&s);
+  sigaddset(&s, SIGTERM);
+  sigaddset(&s, SIGINT);
+  return s;
+}
+
 int check_config_command(const std::string& file) {
   const auto errors = check_config(file, task_catalog());
   if (errors.empty()) {
@@ -55,13 +67,7 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     return kExitConfig;
   }
   const bool simulated = clock_name == "sim";
-  // Signals are taken synchronously by this thread: block them before any lane exists so
-  // that every thread inherits the mask.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGTERM);
-  sigaddset(&signals, SIGINT);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  sigset_t signals = stop_signals();
 
   Cell cell(config, simulated ? ClockKind::kSimulated : ClockKind::kReal);
   try {
@@ -144,6 +150,8 @@ int calibrate_stereo_command(const std::string& folder, const std::string& board
 }  // namespace
 
 int main(int argc, char** argv) {
+  const sigset_t signals = stop_signals();
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   CLI::App app{"markcell: controller of a robotic cell that tracks moving body panels and spray-marks their surface defects"};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "Show help for every subcommand");

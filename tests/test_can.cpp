@@ -108,7 +108,7 @@ TEST_CASE("CAN codec: every malformed input class is rejected with its reason") 
 
 TEST_CASE("the DBC catalogue decodes the codec's frames to the same values") {
   const auto dbc = test::Dbc::load(test::source_path("config/markcell_arm.dbc"));
-  REQUIRE(dbc.messages().size() == 9);
+  REQUIRE(dbc.messages().size() == 11);
   std::array<CanFrame, 3> cmd;
   REQUIRE(co::encode_command(sample(), 200, 2, cmd) == co::EncodeError::kOk);
   ArmState s;
@@ -117,8 +117,12 @@ TEST_CASE("the DBC catalogue decodes the codec's frames to the same values") {
   s.fault_code = 17;
   std::array<CanFrame, 2> state;
   REQUIRE(co::encode_state(s, static_cast<std::uint8_t>(s.flags | co::kStatusRefused), 9, 2, state) == co::EncodeError::kOk);
+  CanFrame cmd_fd, state_fd;
+  REQUIRE(co::encode_command_fd(sample(), 200, 2, cmd_fd) == co::EncodeError::kOk);
+  REQUIRE(co::encode_state_fd(s, static_cast<std::uint8_t>(s.flags | co::kStatusRefused), 9, 2, state_fd) == co::EncodeError::kOk);
   const std::vector<CanFrame> all = {co::nmt(co::NmtCommand::kStart, 2), co::sync(), cmd[0], cmd[1], cmd[2], state[0], state[1],
-                                     co::heartbeat(2, co::NmtState::kOperational), co::heartbeat(1, co::NmtState::kOperational)};
+                                     co::heartbeat(2, co::NmtState::kOperational), co::heartbeat(1, co::NmtState::kOperational),
+                                     cmd_fd, state_fd};
   for (const auto& f : all) {
     INFO("id 0x" << std::hex << f.id);
     REQUIRE(dbc.find(f.id) != nullptr);
@@ -156,6 +160,17 @@ TEST_CASE("the DBC catalogue decodes the codec's frames to the same values") {
         CHECK(v.at("fault_code") == 17);
         break;
       case co::Kind::kHeartbeat: CHECK(v.at("nmt_state") == 5); break;
+      case co::Kind::kTargetFd:
+        CHECK(v.at("fd_target_x") == Approx(m.vector[0]).margin(1e-12));
+        CHECK(v.at("fd_target_rz") == Approx(m.vector2[2]).margin(1e-12));
+        CHECK(v.at("seq") == 200);
+        CHECK(v.at("time_us") == m.time_us);
+        break;
+      case co::Kind::kToolFd:
+        CHECK(v.at("fd_tool_y") == Approx(m.vector[1]).margin(1e-12));
+        CHECK(v.at("status") == (kInPosition | kHomed | co::kStatusRefused));
+        CHECK(v.at("fault_code") == 17);
+        break;
     }
   }
 }
@@ -209,6 +224,55 @@ TEST_CASE("CAN link: NMT start, heartbeats, a set-point reached and reported") {
   }
   CHECK(b.arm.set_points_applied() == 1);
   CHECK(b.link.counters().decode_errors == 0);
+}
+
+TEST_CASE("CAN FD: one frame per set-point and per state, at micrometre resolution, through link and arm") {
+  CanFrame f;
+  ArmCommand c = sample();
+  REQUIRE(co::encode_command_fd(c, 5, 2, f) == co::EncodeError::kOk);
+  CHECK(f.fd);
+  CHECK(f.id == 0x502);
+  CHECK(f.len == 32);
+  co::Message m;
+  REQUIRE(co::decode(f, m) == co::DecodeError::kOk);
+  CHECK(m.kind == co::Kind::kTargetFd);
+  for (std::size_t i = 0; i < 3; ++i) {
+    CHECK(std::abs(m.vector[i] - c.target.position[i]) <= 0.5e-6 + 1e-12);
+    CHECK(std::abs(m.vector2[i] - c.target.rotation[i]) <= 0.5e-6 + 1e-12);
+  }
+  CHECK(m.seq == 5);
+  CHECK(m.mode_or_status == static_cast<std::uint8_t>(ArmMode::kMove));
+  f.len = 24;
+  CHECK(co::decode(f, m) == co::DecodeError::kWrongLength);
+
+  // The link and the simulated arm both configured for FD, on the in-memory wire.
+  Nanos now = seconds(1);
+  SimCanWire wire;
+  wire.set_time_source([](void* t) { return *static_cast<Nanos*>(t); }, &now);
+  SimCanArm arm(wire.b(), 2, SimArmLimits{}, millis(10), millis(50), millis(200), true);
+  CanArmLinkConfig cfg;
+  cfg.fd = true;
+  CanArmLink link(wire.a(), cfg);
+  wire.a().open();
+  arm.start(now);
+  link.activate(now);
+  auto run = [&](Nanos d) {
+    for (const Nanos end = now + d; now < end;) {
+      now += millis(1);
+      arm.poll(now);
+      link.poll(now);
+    }
+  };
+  run(millis(100));
+  REQUIRE(link.status() == ArmLinkStatus::kOk);
+  c.time = now;
+  c.target.position = {0.7, 0.1, 0.3};
+  const auto seq = link.send(c, now);
+  run(millis(2000));
+  CHECK(link.state().applied_seq == seq);
+  CHECK(link.state().in_position());
+  CHECK(link.state().tool.position[0] == Approx(0.7).margin(1e-3));
+  CHECK(arm.set_points_applied() == 1);
 }
 
 TEST_CASE("CAN link: heartbeat loss, refusal, arm reboot, bus-off and restart") {

@@ -225,18 +225,29 @@ TEST_CASE("a killed holder: the kernel releases the lines and they follow their 
 
 namespace {
 
-SocketCanConfig vcan(bool link_side) {
+SocketCanConfig vcan(bool link_side, bool fd = false) {
   SocketCanConfig c;
   c.interface = env("MARKCELL_VCAN");
+  c.fd = fd;
   if (link_side) {
-    c.filter_ids = {canopen::kToolPositionId + 2, canopen::kToolRotationId + 2, canopen::kHeartbeatId + 2};
-    c.filter_count = 3;
+    c.filter_ids = {canopen::kToolPositionId + 2, canopen::kToolRotationId + 2, canopen::kHeartbeatId + 2, canopen::kToolFdId + 2};
+    c.filter_count = 4;
   }
   return c;
 }
 
+CanArmLinkConfig link_config(bool fd) {
+  CanArmLinkConfig c;
+  c.fd = fd;
+  return c;
+}
+
 struct VcanBench {
-  VcanBench() : link_bus(vcan(true)), arm_bus(vcan(false)), arm(arm_bus, 2, SimArmLimits{}), link(link_bus, CanArmLinkConfig{}) {
+  explicit VcanBench(bool fd = false)
+      : link_bus(vcan(true, fd)),
+        arm_bus(vcan(false, fd)),
+        arm(arm_bus, 2, SimArmLimits{}, millis(10), millis(50), millis(200), fd),
+        link(link_bus, link_config(fd)) {
     arm.start(monotonic_now());
     link.activate(monotonic_now());
   }
@@ -337,6 +348,21 @@ TEST_CASE("CAN over vcan: the arm link and the simulated arm, traffic decoded fr
   CHECK(targets == 1);
   CHECK(heartbeats >= 10);
   CHECK(states >= 50);
+}
+
+TEST_CASE("CAN FD over vcan: set-points and states as single FD frames", "[can]") {
+  VcanBench b(true);
+  b.run(150);
+  REQUIRE(b.link.status() == ArmLinkStatus::kOk);
+  ArmCommand c;
+  c.mode = ArmMode::kMove;
+  c.time = monotonic_now();
+  c.target.position = {0.45, 0.2, 0.35};
+  const auto seq = b.link.send(c, monotonic_now());
+  b.run(1500);
+  CHECK(b.link.status() == ArmLinkStatus::kOk);
+  CHECK(b.link.state().applied_seq == seq);
+  CHECK(b.link.state().tool.position[1] == Approx(0.2).margin(1e-3));
 }
 
 TEST_CASE("CAN over vcan: heartbeat loss, bus-off error frames, an interface restart", "[can]") {

@@ -34,6 +34,18 @@ void CanArmLink::deactivate() noexcept {
 
 std::uint8_t CanArmLink::send(const ArmCommand& command, Nanos) noexcept {
   const std::uint8_t seq = ++next_seq_;
+  if (config_.fd) {
+    CanFrame frame;
+    if (canopen::encode_command_fd(command, seq, config_.node_id, frame) != canopen::EncodeError::kOk) {
+      refused_ = true;
+      ++counters_.refusals;
+      return seq;
+    }
+    send_frame(frame);
+    send_frame(canopen::sync());
+    ++counters_.commands_sent;
+    return seq;
+  }
   std::array<CanFrame, 3> frames;
   if (canopen::encode_command(command, seq, config_.node_id, frames) != canopen::EncodeError::kOk) {
     // Outside what the wire can carry (or not finite): refused here, nothing is sent.
@@ -84,6 +96,17 @@ ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
           half_position_ = m;
           half_ = true;
           break;
+        case Kind::kToolFd:
+          state_.tool.position = m.vector;
+          state_.tool.rotation = m.vector2;
+          state_.flags = static_cast<std::uint8_t>(m.mode_or_status & 0x0F);
+          state_.fault_code = m.fault_code;
+          state_.applied_seq = m.seq;
+          state_.received = now;
+          refused_ = (m.mode_or_status & canopen::kStatusRefused) != 0;
+          have_state_ = true;
+          ++counters_.states_received;
+          break;
         case Kind::kToolRotation:
           if (half_ && half_position_.seq == m.seq) {
             state_.tool.position = half_position_.vector;
@@ -120,13 +143,14 @@ ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
 }
 
 SimCanArm::SimCanArm(CanBus& bus, std::uint8_t node, SimArmLimits limits, Nanos state_period, Nanos heartbeat_period,
-                     Nanos master_timeout)
+                     Nanos master_timeout, bool fd)
     : bus_(bus),
       node_(node),
       model_(limits),
       state_period_(state_period),
       heartbeat_period_(heartbeat_period),
-      master_timeout_(master_timeout) {}
+      master_timeout_(master_timeout),
+      fd_(fd) {}
 
 void SimCanArm::start(Nanos now) {
   if (!bus_.is_open()) bus_.open();
@@ -170,6 +194,14 @@ void SimCanArm::poll(Nanos now) {
           partial_.seq = m.seq;
           partial_.rotation = true;
           partial_.command.target.rotation = m.vector;
+          break;
+        case Kind::kTargetFd:
+          if (m.node != node_) break;
+          partial_ = Partial{true, true, true, m.seq, ArmCommand{}};
+          partial_.command.mode = static_cast<ArmMode>(m.mode_or_status);
+          partial_.command.target.position = m.vector;
+          partial_.command.target.rotation = m.vector2;
+          partial_.command.time = static_cast<Nanos>(m.time_us) * kNanosPerMicro;
           break;
         case Kind::kTargetTime:
           if (m.node != node_) break;
@@ -215,11 +247,16 @@ void SimCanArm::poll(Nanos now) {
     next_heartbeat_ = now + heartbeat_period_;
   }
   if (nmt_ == NmtState::kOperational && now >= next_state_) {
-    std::array<CanFrame, 2> out;
     const ArmState s = model_.state();
     const auto status = static_cast<std::uint8_t>(s.flags | (last_refused_ ? canopen::kStatusRefused : 0));
-    if (canopen::encode_state(s, status, last_seq_, node_, out) == canopen::EncodeError::kOk)
-      for (const auto& f : out) bus_.send(f);
+    if (fd_) {
+      CanFrame f;
+      if (canopen::encode_state_fd(s, status, last_seq_, node_, f) == canopen::EncodeError::kOk) bus_.send(f);
+    } else {
+      std::array<CanFrame, 2> out;
+      if (canopen::encode_state(s, status, last_seq_, node_, out) == canopen::EncodeError::kOk)
+        for (const auto& f : out) bus_.send(f);
+    }
     next_state_ = now + state_period_;
   }
 }

@@ -46,6 +46,27 @@ void read_vector(const CanFrame& f, double unit, std::array<double, 3>& out) {
   for (int i = 0; i < 3; ++i) out[static_cast<std::size_t>(i)] = get_i16(f, 2 * i) * unit;
 }
 
+void put_i32(CanFrame& f, int at, std::int32_t v) {
+  const auto u = static_cast<std::uint32_t>(v);
+  for (int i = 0; i < 4; ++i) f.data[static_cast<std::size_t>(at + i)] = static_cast<std::uint8_t>(u >> (8 * i));
+}
+
+std::int32_t get_i32(const CanFrame& f, int at) {
+  std::uint32_t u = 0;
+  for (int i = 0; i < 4; ++i) u |= static_cast<std::uint32_t>(f.data[static_cast<std::size_t>(at + i)]) << (8 * i);
+  return static_cast<std::int32_t>(u);
+}
+
+EncodeError quantise32(const std::array<double, 3>& v, double unit, CanFrame& f, int at) {
+  for (std::size_t i = 0; i < 3; ++i) {
+    if (!std::isfinite(v[i])) return EncodeError::kNotFinite;
+    const double counts = std::round(v[i] / unit);
+    if (counts < -2147483648.0 || counts > 2147483647.0) return EncodeError::kOutOfRange;
+    put_i32(f, at + 4 * static_cast<int>(i), static_cast<std::int32_t>(counts));
+  }
+  return EncodeError::kOk;
+}
+
 bool valid_nmt_state(std::uint8_t s) { return s == 0x00 || s == 0x04 || s == 0x05 || s == 0x7F; }
 bool valid_nmt_command(std::uint8_t c) { return c == 0x01 || c == 0x02 || c == 0x80 || c == 0x81; }
 
@@ -90,6 +111,30 @@ EncodeError encode_state(const ArmState& s, std::uint8_t status, std::uint8_t se
   return EncodeError::kOk;
 }
 
+EncodeError encode_command_fd(const ArmCommand& c, std::uint8_t seq, std::uint8_t node, CanFrame& out) {
+  CanFrame f = frame(kTargetFdId + node, kFdLength);
+  f.fd = true;
+  if (const auto e = quantise32(c.target.position, kFdPositionUnit, f, 0); e != EncodeError::kOk) return e;
+  if (const auto e = quantise32(c.target.rotation, kFdRotationUnit, f, 12); e != EncodeError::kOk) return e;
+  f.data[24] = static_cast<std::uint8_t>(c.mode);
+  f.data[25] = seq;
+  put_i32(f, 26, static_cast<std::int32_t>(static_cast<std::uint32_t>(static_cast<std::uint64_t>(c.time / kNanosPerMicro) & 0xFFFFFFFFU)));
+  out = f;
+  return EncodeError::kOk;
+}
+
+EncodeError encode_state_fd(const ArmState& s, std::uint8_t status, std::uint8_t seq, std::uint8_t node, CanFrame& out) {
+  CanFrame f = frame(kToolFdId + node, kFdLength);
+  f.fd = true;
+  if (const auto e = quantise32(s.tool.position, kFdPositionUnit, f, 0); e != EncodeError::kOk) return e;
+  if (const auto e = quantise32(s.tool.rotation, kFdRotationUnit, f, 12); e != EncodeError::kOk) return e;
+  f.data[24] = status;
+  f.data[25] = seq;
+  f.data[26] = s.fault_code;
+  out = f;
+  return EncodeError::kOk;
+}
+
 std::string_view to_string(DecodeError e) {
   switch (e) {
     case DecodeError::kOk: return "ok";
@@ -106,6 +151,32 @@ std::string_view to_string(DecodeError e) {
 
 DecodeError decode(const CanFrame& f, Message& out) {
   if (f.error || f.extended) return DecodeError::kRemoteOrError;
+  if (f.fd) {  // only the two FD messages travel as FD frames
+    const std::uint32_t function = f.id & 0x780, node = f.id & 0x7F;
+    if ((function != kTargetFdId && function != kToolFdId) || node == 0) return DecodeError::kUnknownId;
+    if (f.len != kFdLength) return DecodeError::kWrongLength;
+    Message m;
+    m.node = static_cast<std::uint8_t>(node);
+    for (int i = 0; i < 3; ++i) {
+      m.vector[static_cast<std::size_t>(i)] = get_i32(f, 4 * i) * kFdPositionUnit;
+      m.vector2[static_cast<std::size_t>(i)] = get_i32(f, 12 + 4 * i) * kFdRotationUnit;
+    }
+    m.mode_or_status = f.data[24];
+    m.seq = f.data[25];
+    if (function == kTargetFdId) {
+      if (f.data[24] > static_cast<std::uint8_t>(ArmMode::kStop)) return DecodeError::kBadMode;
+      if (f.data[30] != 0 || f.data[31] != 0) return DecodeError::kReservedNotZero;
+      m.kind = Kind::kTargetFd;
+      m.time_us = static_cast<std::uint32_t>(get_i32(f, 26));
+    } else {
+      for (int i = 27; i < 32; ++i)
+        if (f.data[static_cast<std::size_t>(i)] != 0) return DecodeError::kReservedNotZero;
+      m.kind = Kind::kToolFd;
+      m.fault_code = f.data[26];
+    }
+    out = m;
+    return DecodeError::kOk;
+  }
   const std::uint32_t id = f.id;
   Message m;
   auto need = [&](std::uint8_t len) { return f.len == len; };

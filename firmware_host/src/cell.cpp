@@ -19,7 +19,7 @@ const std::vector<std::string>& task_catalog() {
 namespace {
 drivers::CanArmLinkConfig can_link_config(const CanConfig& c) {
   return drivers::CanArmLinkConfig{static_cast<std::uint8_t>(c.node_id), static_cast<std::uint8_t>(c.controller_node_id),
-                                   c.heartbeat_period, c.heartbeat_timeout};
+                                   c.heartbeat_period, c.heartbeat_timeout, c.fd};
 }
 }  // namespace
 
@@ -91,7 +91,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
       limits.home.position = config.arm.limits.home;
       sim_world_->arm = std::make_unique<drivers::SimCanArm>(
           sim_world_->wire.b(), static_cast<std::uint8_t>(config.arm.can.node_id), limits, millis(10),
-          config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout);
+          config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout, config.arm.can.fd);
       arm_link_ = std::make_unique<drivers::CanArmLink>(sim_world_->wire.a(), can_link_config(config.arm.can));
       break;
     }
@@ -101,8 +101,8 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
       bus.fd = config.arm.can.fd;
       const auto node = static_cast<std::uint32_t>(config.arm.can.node_id);
       bus.filter_ids = {drivers::canopen::kToolPositionId + node, drivers::canopen::kToolRotationId + node,
-                        drivers::canopen::kHeartbeatId + node};
-      bus.filter_count = 3;
+                        drivers::canopen::kHeartbeatId + node, drivers::canopen::kToolFdId + node};
+      bus.filter_count = 4;
       can_bus_ = std::make_unique<drivers::SocketCanBus>(bus);
       arm_link_ = std::make_unique<drivers::CanArmLink>(*can_bus_, can_link_config(config.arm.can));
       break;

@@ -17,14 +17,15 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   CanArmLink link(wire.a(), CanArmLinkConfig{});
   link.activate(now);
   std::size_t at = 0;
-  // Each frame: 2 bytes id+flags, 1 byte length, then up to 8 data bytes.
+  // Each frame: 2 bytes id+flags, 1 byte length, then up to 8 (classic) or 64 (FD) data bytes.
   while (at + 3 <= size) {
     CanFrame f;
     const std::uint16_t word = static_cast<std::uint16_t>(data[at] | (data[at + 1] << 8));
     f.id = word & 0x7FF;
     f.error = (word & 0x8000) != 0;
     f.extended = (word & 0x4000) != 0;
-    f.len = static_cast<std::uint8_t>(data[at + 2] % 9);
+    f.fd = (word & 0x2000) != 0;
+    f.len = static_cast<std::uint8_t>(data[at + 2] % (f.fd ? 65 : 9));
     at += 3;
     const std::size_t n = std::min<std::size_t>(f.len, size - at);
     std::memcpy(f.data.data(), data + at, n);

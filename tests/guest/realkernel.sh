@@ -4,6 +4,7 @@
 # program with where to find them in the environment.
 set -eu
 ip link add dev vcan0 type vcan
+ip link set vcan0 mtu 72   # CAN FD frames
 ip link set up vcan0
 export MARKCELL_VCAN=vcan0
 

@@ -21,6 +21,7 @@ struct CanArmLinkConfig {
   std::uint8_t controller_node_id = 1;
   Nanos heartbeat_period = millis(50);
   Nanos heartbeat_timeout = millis(150);
+  bool fd = false;  // set-points and states as single CAN FD frames (TARGET_FD, TOOL_FD)
 };
 
 class CanArmLink final : public ArmLink {
@@ -62,7 +63,7 @@ class CanArmLink final : public ArmLink {
 class SimCanArm {
  public:
   SimCanArm(CanBus& bus, std::uint8_t node, SimArmLimits limits, Nanos state_period = millis(10),
-            Nanos heartbeat_period = millis(50), Nanos master_timeout = millis(200));
+            Nanos heartbeat_period = millis(50), Nanos master_timeout = millis(200), bool fd = false);
   void start(Nanos now);  // power-up: boot-up heartbeat, pre-operational
   void poll(Nanos now);
   SimArmModel& model() { return model_; }
@@ -81,6 +82,7 @@ class SimCanArm {
   Nanos next_state_ = 0;
   Nanos next_heartbeat_ = 0;
   Nanos master_timeout_;
+  bool fd_;
   Nanos last_master_ = 0;
   bool master_seen_ = false;
   bool master_lost_ = false;

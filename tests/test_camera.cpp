@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "markcell/drivers/camera.hpp"
+#include "alloc_guard.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -98,6 +99,21 @@ TEST_CASE("a stereo pair of fake GigE Vision cameras: frames, a killed camera, a
     CHECK(age < seconds(2));  // stamped on this machine's monotonic clock
   }
   CHECK(pair.counters().pairs == 10);
+  {
+    std::size_t allocations = 0;
+    int pairs = 0;
+    {
+      test::AllocationGuard guard;
+      for (int i = 0; i < 20; ++i) {
+        pair.trigger();
+        StereoFrame f;
+        pairs += pair.next(f, seconds(2)) == PairStatus::kPair;
+      }
+      allocations = guard.allocations();
+    }
+    std::cout << "heap allocations in 20 stereo pairs once streaming (any thread, Aravis's included): " << allocations << "\n";
+    CHECK(pairs == 20);
+  }
   CHECK(left.counters().frames >= 10);
   CHECK(left.counters().incomplete == 0);
 

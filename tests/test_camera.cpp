@@ -41,13 +41,9 @@ class FakeCamera {
              static_cast<char*>(nullptr));
       _exit(127);
     }
-    // Ready when it answers on its control channel (bounded: 10 s on a loaded machine).
-    for (int i = 0; i < 40; ++i) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(250));
-      AravisCamera probe(CameraSettings{address_, 640, 480, 30.0, 4000.0, 0.0, TriggerMode::kSoftware, "Line0", 2});
-      std::string why;
-      if (probe.reconnect(why)) return;
-    }
+    // It binds its GVCP socket. (Probing it by connecting is worse: the probe's own
+    // control session disturbs the fake camera's next client.)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1000));
   }
   void stop() {
     if (pid_ > 0) {

@@ -59,6 +59,19 @@ std::uint8_t CanArmLink::send(const ArmCommand& command, Nanos) noexcept {
   return seq;
 }
 
+void CanArmLink::take_state(const std::array<double, 3>& position, const std::array<double, 3>& rotation,
+                            std::uint8_t status, std::uint8_t fault_code, std::uint8_t seq, Nanos now) noexcept {
+  state_.tool.position = position;
+  state_.tool.rotation = rotation;
+  state_.flags = static_cast<std::uint8_t>(status & 0x0F);
+  state_.fault_code = fault_code;
+  state_.applied_seq = seq;
+  state_.received = now;
+  refused_ = (status & canopen::kStatusRefused) != 0;
+  have_state_ = true;
+  ++counters_.states_received;
+}
+
 ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
   if (status_ == ArmLinkStatus::kInactive) return status_;
   std::array<CanFrame, 32> frames;
@@ -97,27 +110,11 @@ ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
           half_ = true;
           break;
         case Kind::kToolFd:
-          state_.tool.position = m.vector;
-          state_.tool.rotation = m.vector2;
-          state_.flags = static_cast<std::uint8_t>(m.mode_or_status & 0x0F);
-          state_.fault_code = m.fault_code;
-          state_.applied_seq = m.seq;
-          state_.received = now;
-          refused_ = (m.mode_or_status & canopen::kStatusRefused) != 0;
-          have_state_ = true;
-          ++counters_.states_received;
+          take_state(m.vector, m.vector2, m.mode_or_status, m.fault_code, m.seq, now);
           break;
         case Kind::kToolRotation:
           if (half_ && half_position_.seq == m.seq) {
-            state_.tool.position = half_position_.vector;
-            state_.tool.rotation = m.vector;
-            state_.flags = static_cast<std::uint8_t>(half_position_.mode_or_status & 0x0F);
-            state_.fault_code = m.fault_code;
-            state_.applied_seq = m.seq;
-            state_.received = now;
-            refused_ = (half_position_.mode_or_status & canopen::kStatusRefused) != 0;
-            have_state_ = true;
-            ++counters_.states_received;
+            take_state(half_position_.vector, m.vector, half_position_.mode_or_status, m.fault_code, m.seq, now);
           } else {
             ++counters_.decode_errors;  // a rotation without its position: a lost frame
           }

@@ -38,6 +38,9 @@ class CanArmLink final : public ArmLink {
 
  private:
   void send_frame(const CanFrame& f) noexcept;
+  // One state from the arm, from its two classic frames or its one FD frame.
+  void take_state(const std::array<double, 3>& position, const std::array<double, 3>& rotation, std::uint8_t status,
+                  std::uint8_t fault_code, std::uint8_t seq, Nanos now) noexcept;
   CanBus& bus_;
   CanArmLinkConfig config_;
   ArmState state_;

@@ -170,6 +170,14 @@ void SimCanArm::poll(Nanos now) {
         ++decode_errors_;
         continue;
       }
+      // The parts of a set-point: ours only; a new seq (or an FD frame, which is whole)
+      // starts a new set-point.
+      if (m.kind == Kind::kTargetPosition || m.kind == Kind::kTargetRotation || m.kind == Kind::kTargetTime ||
+          m.kind == Kind::kTargetFd) {
+        if (m.node != node_) continue;
+        if (m.seq != partial_.seq || m.kind == Kind::kTargetFd) partial_ = Partial{};
+        partial_.seq = m.seq;
+      }
       switch (m.kind) {
         case Kind::kNmt:
           if (m.node != node_ && m.node != 0) break;
@@ -178,33 +186,23 @@ void SimCanArm::poll(Nanos now) {
           if (m.nmt_command == NmtCommand::kPreOperational) nmt_ = NmtState::kPreOperational;
           break;
         case Kind::kTargetPosition:
-          if (m.node != node_) break;
-          if (m.seq != partial_.seq) partial_ = Partial{};
-          partial_.seq = m.seq;
           partial_.position = true;
           partial_.command.mode = static_cast<ArmMode>(m.mode_or_status);
           partial_.command.target.position = m.vector;
           break;
         case Kind::kTargetRotation:
-          if (m.node != node_) break;
-          if (m.seq != partial_.seq) partial_ = Partial{};
-          partial_.seq = m.seq;
           partial_.rotation = true;
           partial_.command.target.rotation = m.vector;
           break;
-        case Kind::kTargetFd:
-          if (m.node != node_) break;
-          partial_ = Partial{true, true, true, m.seq, ArmCommand{}};
+        case Kind::kTargetTime:
+          partial_.time = true;
+          partial_.command.time = static_cast<Nanos>(m.time_us) * kNanosPerMicro;
+          break;
+        case Kind::kTargetFd:  // the whole set-point in one frame
+          partial_.position = partial_.rotation = partial_.time = true;
           partial_.command.mode = static_cast<ArmMode>(m.mode_or_status);
           partial_.command.target.position = m.vector;
           partial_.command.target.rotation = m.vector2;
-          partial_.command.time = static_cast<Nanos>(m.time_us) * kNanosPerMicro;
-          break;
-        case Kind::kTargetTime:
-          if (m.node != node_) break;
-          if (m.seq != partial_.seq) partial_ = Partial{};
-          partial_.seq = m.seq;
-          partial_.time = true;
           partial_.command.time = static_cast<Nanos>(m.time_us) * kNanosPerMicro;
           break;
         case Kind::kHeartbeat:

@@ -96,6 +96,21 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed) {
   throw std::invalid_argument("unknown scenario '" + name + "' (known: " + known + ")");
 }
 
+vision::PanelTypeModel reference_panel_type(const Scenario& s, const vision::StereoCalibration& marking,
+                                            const vision::RenderSettings& render, cv::Mat* reference_left) {
+  const vision::PanelShape panel = vision::panel_shape(s.panel_type);
+  Eigen::Isometry3d X_CamR_Panel = s.path.X_CamR_Line;
+  X_CamR_Panel.translation().x() = marking.X_CamR_CamL.translation().x();  // in front of the left camera
+  const vision::StereoRenderer renderer(marking, render);
+  cv::Mat left, right;
+  renderer.render(panel, X_CamR_Panel, 1.0, s.seed * 7919ULL + 17, {}, left, right);
+  std::vector<Eigen::Vector2d> px;
+  for (const auto& mf : panel.macro_features) px.push_back(renderer.project(0, X_CamR_Panel * mf));
+  if (reference_left != nullptr) *reference_left = left;
+  // The line may bring the panel anywhere along its travel into view: search wide.
+  return vision::make_panel_type(s.panel_type, left, px, 2, 400, 40);
+}
+
 bool frame_dropped(const Scenario& s, std::uint64_t index) {
   if (s.drop_burst_length > 0 && index >= s.drop_burst_start && index < s.drop_burst_start + s.drop_burst_length)
     return true;

@@ -19,6 +19,7 @@
 #include "markcell/common/time.hpp"
 #include "markcell/host/rig/inspection.hpp"
 #include "markcell/host/rig/line_motion.hpp"
+#include "markcell/vision/panel_tracker.hpp"
 #include "markcell/vision/render.hpp"
 
 namespace markcell::host::rig {
@@ -59,6 +60,12 @@ struct GenerateOptions {
 std::size_t generate_recording(const Scenario& scenario, const std::string& folder,
                                const vision::StereoCalibration& marking, const vision::StereoCalibration& scanner,
                                const vision::RenderSettings& render, const GenerateOptions& options = {});
+
+// The panel type's file as the installation engineer would make it with select-mfs: the
+// panel rendered square to the left camera, its MFs where the camera model projects
+// them (then snapped to the corner, as the tool does). Also returns the reference image.
+vision::PanelTypeModel reference_panel_type(const Scenario& scenario, const vision::StereoCalibration& marking,
+                                            const vision::RenderSettings& render, cv::Mat* reference_left = nullptr);
 
 // Whether frame `index` of the scenario is lost (deterministic from its seed).
 bool frame_dropped(const Scenario& scenario, std::uint64_t index);

@@ -1,0 +1,142 @@
+#pragma once
+// The paper's pose and motion estimator (sections II, III.A) as a bounded-time step:
+// a panel type's macro-features (MFs) are found again when a new panel enters the view,
+// then followed frame to frame in both views and triangulated, and the rigid motion of
+// the MF set gives the panel's pose.
+//
+// Frames: CamR (the tracking frame) and P, the panel frame the tracker sets up at
+// re-initialisation: P is where CamR was when the panel's MFs were found, so X_CamR_P is
+// the identity on that frame and the panel's motion since then afterwards. The
+// inspection station's frame follows from one inter-calibration per panel:
+// X_CamR_SL(t) = X_CamR_P(t) * X_P_SL.
+//
+// Model (immutable: the panel type, the rig, the parameters) plus a workspace allocated
+// once at construction: process() allocates nothing and every loop in it has a bound
+// fixed by the configuration.
+#include <array>
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "markcell/common/time.hpp"
+#include "markcell/vision/optical_flow.hpp"
+#include "markcell/vision/stereo_rig.hpp"
+
+namespace markcell::vision {
+
+inline constexpr int kMaxMacroFeatures = 16;
+inline constexpr int kTemplateRadius = 7;  // 15x15 template patches
+
+// A panel type's MFs as the installation engineer picked them on a reference image of
+// the left camera (markcell select-mfs), with their template patches.
+struct PanelTypeModel {
+  std::string name;
+  int count = 0;
+  int image_width = 0, image_height = 0;
+  int search_x = 160, search_y = 40;  // half range of the panel's shift at re-initialisation, px
+  std::array<Eigen::Vector2d, kMaxMacroFeatures> reference_px{};
+  std::array<Patch, kMaxMacroFeatures> templates{};         // level 0
+  std::array<Patch, kMaxMacroFeatures> coarse_templates{};  // at the coarse search level
+};
+inline constexpr int kCoarseLevel = 2;
+
+// Builds a model from a reference image and MF positions (each snapped to the strongest
+// corner within `snap_radius` pixels first when snap_radius > 0). Throws naming the MF
+// that lies too close to the border or has no corner.
+PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
+                               const std::vector<Eigen::Vector2d>& positions, int snap_radius, int search_x,
+                               int search_y);
+// OpenCV FileStorage YAML: panel_type, image_width, image_height, search_x_px,
+// search_y_px, macro_features (Nx2 px), templates and coarse_templates (N rows of
+// patch values). Errors name the file and the key.
+void save_panel_type(const std::string& path, const PanelTypeModel& model);
+PanelTypeModel load_panel_type(const std::string& path);
+
+struct TrackerParams {
+  LkParams lk;
+  int pyramid_levels = 3;
+  int corner_radius = 5;            // Shi-Tomasi refinement window, half size
+  double forward_backward_px = 0.5; // forward-backward consistency of frame-to-frame LK
+  double epipolar_px = 1.0;         // max distance from the epipolar line
+  double min_ncc = 0.75;            // template match score that counts as found
+  int min_macro_features = 4;       // fewer than this: no pose
+  double inlier_m = 0.008;          // rigid-motion consistency of an MF, metres (depth noise is ~2 mm)
+  double depth_min = 2.0, depth_max = 4.5;  // where a panel can be, metres from CamR
+  int lost_frames_to_reinit = 15;   // frames without a pose before the MFs are searched anew
+  int ransac_iterations = 64;
+};
+
+enum class TrackStatus : std::uint8_t {
+  kTracking,        // pose from tracked MFs
+  kReinitialised,   // MFs found anew this frame; X_CamR_P is the identity
+  kSearching,       // no panel found (reason says why)
+  kLost,            // too few MFs this frame; pose is the last one
+};
+std::string_view to_string(TrackStatus status);
+
+struct MacroFeatureObservation {
+  bool valid = false;     // seen in both views this frame
+  bool inlier = false;    // and consistent with the rigid motion
+  Eigen::Vector2d left = Eigen::Vector2d::Zero(), right = Eigen::Vector2d::Zero();  // observed pixels
+  Eigen::Vector3d p_CamR = Eigen::Vector3d::Zero();
+};
+
+struct PoseEstimate {
+  std::uint64_t seq = 0;
+  Nanos time = 0;                   // capture time of the frame pair
+  TrackStatus status = TrackStatus::kSearching;
+  std::string_view reason;          // why there is no pose (static text)
+  std::uint32_t reference_serial = 0;  // changes whenever P is set up anew
+  Eigen::Isometry3d X_CamR_P = Eigen::Isometry3d::Identity();
+  int tracked = 0;                  // MFs seen in both views
+  int inliers = 0;                  // MFs used for the pose
+  double rms = 0;                   // residual of the rigid fit, metres
+  std::array<MacroFeatureObservation, kMaxMacroFeatures> mfs{};
+  bool has_pose() const { return status == TrackStatus::kTracking || status == TrackStatus::kReinitialised; }
+};
+
+class PanelTracker {
+ public:
+  PanelTracker(const StereoRig& rig, const PanelTypeModel& model, const TrackerParams& params);
+  // One stereo pair (8-bit, the rig's size). Bounded time, no allocation.
+  const PoseEstimate& process(std::uint64_t seq, Nanos time, const cv::Mat& left, const cv::Mat& right);
+  // A new panel: the next frame searches for the MFs.
+  void reset();
+  // The MFs' positions in P (valid where `known`), set at re-initialisation; an MF not
+  // found then can be given its position (from the inspection record through the
+  // inter-calibration) so that it is picked up when it comes into view.
+  const std::array<Eigen::Vector3d, kMaxMacroFeatures>& reference_P() const { return reference_P_; }
+  const std::array<bool, kMaxMacroFeatures>& reference_known() const { return known_; }
+  void set_reference(int mf, const Eigen::Vector3d& p_P);
+  const PoseEstimate& last() const { return estimate_; }
+  const PanelTypeModel& model() const { return model_; }
+
+ private:
+  void reinitialise();
+  void track();
+  bool find_right(int mf, const Eigen::Vector2d& left, Eigen::Vector2d& right) const;
+  bool verify_pair(const Eigen::Vector2d& left, Eigen::Vector2d& right) const;
+  void fit_pose();
+  void reacquire();
+
+  const StereoRig& rig_;
+  const PanelTypeModel model_;
+  const TrackerParams params_;
+  Pyramid left_[2];
+  Pyramid right_;
+  int cur_ = 0;
+  bool have_previous_ = false;
+  bool searching_ = true;
+  int lost_frames_ = 0;
+  PoseEstimate estimate_;
+  std::array<Eigen::Vector3d, kMaxMacroFeatures> reference_P_{};
+  std::array<bool, kMaxMacroFeatures> known_{};
+  std::array<bool, kMaxMacroFeatures> tracked_{};  // has a left/right position from the previous frame
+  std::array<Eigen::Vector2d, kMaxMacroFeatures> prev_left_{}, prev_right_{}, velocity_{};
+  std::array<Patch, kMaxMacroFeatures> patch_{};   // left template per MF, taken at re-initialisation
+};
+
+}  // namespace markcell::vision

@@ -1,0 +1,403 @@
+#include "markcell/vision/panel_tracker.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <opencv2/core/persistence.hpp>
+
+#include "markcell/common/check.hpp"
+#include "markcell/vision/geometry.hpp"
+
+namespace markcell::vision {
+
+std::string_view to_string(TrackStatus s) {
+  switch (s) {
+    case TrackStatus::kTracking: return "tracking";
+    case TrackStatus::kReinitialised: return "reinitialised";
+    case TrackStatus::kSearching: return "searching";
+    case TrackStatus::kLost: return "lost";
+  }
+  return "?";
+}
+
+namespace {
+int coarse_scale() { return 1 << kCoarseLevel; }
+
+void snap_to_corner(const Pyramid& image, Eigen::Vector2d& p, int radius) {
+  double best = -1;
+  Eigen::Vector2d best_p = p;
+  const int cx = static_cast<int>(std::lround(p.x())), cy = static_cast<int>(std::lround(p.y()));
+  for (int y = cy - radius; y <= cy + radius; ++y)
+    for (int x = cx - radius; x <= cx + radius; ++x) {
+      const double s = shi_tomasi(image, x, y, 2);
+      if (s > best) {
+        best = s;
+        best_p = {x, y};
+      }
+    }
+  p = best_p;
+}
+
+cv::Mat patches_to_mat(const std::array<Patch, kMaxMacroFeatures>& patches, int count) {
+  const int r = patches[0].radius;
+  const int n = (2 * r + 1) * (2 * r + 1);
+  cv::Mat m(count, n, CV_32F);
+  for (int i = 0; i < count; ++i)
+    for (int k = 0; k < n; ++k) m.at<float>(i, k) = patches[static_cast<std::size_t>(i)].v[static_cast<std::size_t>(k)];
+  return m;
+}
+}  // namespace
+
+PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
+                               const std::vector<Eigen::Vector2d>& positions, int snap_radius, int search_x,
+                               int search_y) {
+  MARKCELL_THROW_UNLESS(positions.size() >= 3 && positions.size() <= static_cast<std::size_t>(kMaxMacroFeatures),
+                        "panel type '" << name << "' has " << positions.size() << " macro-features, 3.."
+                                       << kMaxMacroFeatures << " are needed");
+  Pyramid pyramid(reference_left.cols, reference_left.rows, kCoarseLevel + 1);
+  pyramid.build(reference_left);
+  PanelTypeModel m;
+  m.name = name;
+  m.count = static_cast<int>(positions.size());
+  m.image_width = reference_left.cols;
+  m.image_height = reference_left.rows;
+  m.search_x = search_x;
+  m.search_y = search_y;
+  for (int i = 0; i < m.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    Eigen::Vector2d p = positions[k];
+    if (snap_radius > 0) snap_to_corner(pyramid, p, snap_radius);
+    if (!refine_corner(pyramid, p, 5))
+      throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + " at (" +
+                                  std::to_string(positions[k].x()) + ", " + std::to_string(positions[k].y()) +
+                                  ") has no corner within 5 px or is too close to the border");
+    m.reference_px[k] = p;
+    if (!extract_patch(pyramid, 0, p, kTemplateRadius, m.templates[k]) ||
+        !extract_patch(pyramid, kCoarseLevel, p / coarse_scale(), kTemplateRadius / 2 + 1, m.coarse_templates[k]))
+      throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) +
+                                  " is too close to the image border for its template");
+  }
+  return m;
+}
+
+void save_panel_type(const std::string& path, const PanelTypeModel& m) {
+  cv::FileStorage fs(path, cv::FileStorage::WRITE);
+  if (!fs.isOpened()) throw std::runtime_error(path + ": cannot write");
+  fs << "panel_type" << m.name << "image_width" << m.image_width << "image_height" << m.image_height;
+  fs << "search_x_px" << m.search_x << "search_y_px" << m.search_y;
+  cv::Mat px(m.count, 2, CV_64F);
+  for (int i = 0; i < m.count; ++i) {
+    px.at<double>(i, 0) = m.reference_px[static_cast<std::size_t>(i)].x();
+    px.at<double>(i, 1) = m.reference_px[static_cast<std::size_t>(i)].y();
+  }
+  fs << "macro_features" << px;
+  fs << "templates" << patches_to_mat(m.templates, m.count);
+  fs << "coarse_templates" << patches_to_mat(m.coarse_templates, m.count);
+}
+
+PanelTypeModel load_panel_type(const std::string& path) {
+  cv::FileStorage fs;
+  try {
+    fs.open(path, cv::FileStorage::READ);
+  } catch (const cv::Exception& e) {
+    throw std::runtime_error(path + ": not a readable OpenCV YAML file: " + e.err);
+  }
+  if (!fs.isOpened()) throw std::runtime_error(path + ": cannot open");
+  auto need = [&](const char* key) {
+    const cv::FileNode n = fs[key];
+    if (n.empty()) throw std::runtime_error(path + ": missing key '" + key + "'");
+    return n;
+  };
+  PanelTypeModel m;
+  m.name = static_cast<std::string>(need("panel_type"));
+  m.image_width = static_cast<int>(need("image_width"));
+  m.image_height = static_cast<int>(need("image_height"));
+  m.search_x = static_cast<int>(need("search_x_px"));
+  m.search_y = static_cast<int>(need("search_y_px"));
+  cv::Mat px, t, ct;
+  need("macro_features") >> px;
+  need("templates") >> t;
+  need("coarse_templates") >> ct;
+  if (px.cols != 2 || px.rows < 3 || px.rows > kMaxMacroFeatures || px.type() != CV_64F)
+    throw std::runtime_error(path + ": 'macro_features' must be an Nx2 double matrix, 3 <= N <= " +
+                             std::to_string(kMaxMacroFeatures));
+  m.count = px.rows;
+  auto read_patches = [&](const cv::Mat& mat, const char* key, int radius, std::array<Patch, kMaxMacroFeatures>& out) {
+    const int n = (2 * radius + 1) * (2 * radius + 1);
+    if (mat.rows != m.count || mat.cols != n || mat.type() != CV_32F)
+      throw std::runtime_error(path + ": '" + key + "' must be " + std::to_string(m.count) + "x" + std::to_string(n) +
+                               " float, is " + std::to_string(mat.rows) + "x" + std::to_string(mat.cols));
+    for (int i = 0; i < m.count; ++i) {
+      out[static_cast<std::size_t>(i)].radius = radius;
+      for (int k = 0; k < n; ++k) out[static_cast<std::size_t>(i)].v[static_cast<std::size_t>(k)] = mat.at<float>(i, k);
+    }
+  };
+  read_patches(t, "templates", kTemplateRadius, m.templates);
+  read_patches(ct, "coarse_templates", kTemplateRadius / 2 + 1, m.coarse_templates);
+  for (int i = 0; i < m.count; ++i) m.reference_px[static_cast<std::size_t>(i)] = {px.at<double>(i, 0), px.at<double>(i, 1)};
+  if (m.search_x < 0 || m.search_y < 0) throw std::runtime_error(path + ": search_x_px and search_y_px must be >= 0");
+  return m;
+}
+
+PanelTracker::PanelTracker(const StereoRig& rig, const PanelTypeModel& model, const TrackerParams& params)
+    : rig_(rig),
+      model_(model),
+      params_(params),
+      left_{Pyramid(rig.width(), rig.height(), std::max(params.pyramid_levels, kCoarseLevel + 1)),
+            Pyramid(rig.width(), rig.height(), std::max(params.pyramid_levels, kCoarseLevel + 1))},
+      right_(rig.width(), rig.height(), std::max(params.pyramid_levels, kCoarseLevel + 1)) {
+  MARKCELL_THROW_UNLESS(model.image_width == rig.width() && model.image_height == rig.height(),
+                        "panel type '" << model.name << "' was picked on " << model.image_width << "x"
+                                       << model.image_height << " images, the cameras give " << rig.width() << "x"
+                                       << rig.height());
+  MARKCELL_THROW_UNLESS(params.min_macro_features >= 3 && params.min_macro_features <= model.count,
+                        "min_macro_features=" << params.min_macro_features << " with " << model.count << " MFs");
+}
+
+void PanelTracker::reset() {
+  searching_ = true;
+  have_previous_ = false;
+  lost_frames_ = 0;
+  known_.fill(false);
+  tracked_.fill(false);
+}
+
+void PanelTracker::set_reference(int mf, const Eigen::Vector3d& p_P) {
+  if (mf < 0 || mf >= model_.count) return;
+  reference_P_[static_cast<std::size_t>(mf)] = p_P;
+  known_[static_cast<std::size_t>(mf)] = true;
+}
+
+const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const cv::Mat& left, const cv::Mat& right) {
+  cur_ ^= 1;
+  left_[cur_].build(left);
+  right_.build(right);
+  estimate_.seq = seq;
+  estimate_.time = time;
+  estimate_.reason = {};
+  for (auto& o : estimate_.mfs) o = MacroFeatureObservation{};
+  if (searching_ || !have_previous_) reinitialise();
+  else track();
+  have_previous_ = true;
+  return estimate_;
+}
+
+bool PanelTracker::verify_pair(const Eigen::Vector2d& left, Eigen::Vector2d& right) const {
+  if (!refine_corner(right_, right, params_.corner_radius)) return false;
+  const double d = rig_.epipolar_distance(rig_.undistort(Camera::kLeft, left), rig_.undistort(Camera::kRight, right));
+  if (!(d <= params_.epipolar_px)) return false;
+  const Eigen::Vector3d p = rig_.triangulate_observed(left, right);
+  return p.z() >= params_.depth_min && p.z() <= params_.depth_max;
+}
+
+bool PanelTracker::find_right(int mf, const Eigen::Vector2d& left, Eigen::Vector2d& right) const {
+  // Walk the left pixel's epipolar segment between the nearest and farthest panel depth
+  // in the right view, at one-pixel steps, for the best template match; then LK from the
+  // left view refines it and the corner refinement and epipolar check confirm it.
+  const Pyramid& L = left_[cur_];
+  const Eigen::Vector2d u = rig_.undistort(Camera::kLeft, left);
+  const Eigen::Matrix3d& K = rig_.calibration().left.K;
+  const Eigen::Vector3d ray_L((u.x() - K(0, 2)) / K(0, 0), (u.y() - K(1, 2)) / K(1, 1), 1.0);
+  const Eigen::Isometry3d& X_R_L = rig_.calibration().X_CamR_CamL;
+  const Eigen::Vector2d a = rig_.project(Camera::kRight, X_R_L * (ray_L * params_.depth_max));
+  const Eigen::Vector2d b = rig_.project(Camera::kRight, X_R_L * (ray_L * params_.depth_min));
+  const int steps = std::min(static_cast<int>(std::ceil((b - a).norm())), 2 * (rig_.width() + rig_.height()));
+  Patch patch;
+  if (!extract_patch(L, 0, left, kTemplateRadius, patch)) return false;
+  double best = -1;
+  Eigen::Vector2d best_p = a;
+  for (int s = 0; s <= steps; ++s) {
+    const Eigen::Vector2d q = steps > 0 ? Eigen::Vector2d(a + (b - a) * (static_cast<double>(s) / steps)) : a;
+    for (int dy = -1; dy <= 1; ++dy) {  // the segment is straight only without distortion
+      const double score = ncc(patch, right_, 0, static_cast<int>(std::lround(q.x())), static_cast<int>(std::lround(q.y())) + dy);
+      if (score > best) {
+        best = score;
+        best_p = {std::round(q.x()), std::round(q.y()) + dy};
+      }
+    }
+  }
+  (void)mf;
+  if (best < params_.min_ncc) return false;
+  const LkResult lk = track_point(L, right_, left, best_p, params_.lk);
+  right = lk.status == LkStatus::kOk ? lk.point : best_p;
+  return verify_pair(left, right);
+}
+
+void PanelTracker::reinitialise() {
+  const Pyramid& L = left_[cur_];
+  const int s = coarse_scale();
+  // 1. The panel's shift from the reference image: every MF moves (nearly) alike, so the
+  //    shift that matches the most templates best wins, searched on the coarse level.
+  double best_score = 0;
+  int best_dx = 0, best_dy = 0;
+  const int rx = model_.search_x / s, ry = model_.search_y / s;
+  for (int dy = -ry; dy <= ry; ++dy)
+    for (int dx = -rx; dx <= rx; ++dx) {
+      double score = 0;
+      int seen = 0;
+      for (int i = 0; i < model_.count; ++i) {
+        const Eigen::Vector2d& r = model_.reference_px[static_cast<std::size_t>(i)];
+        const double c = ncc(model_.coarse_templates[static_cast<std::size_t>(i)], L, kCoarseLevel,
+                             static_cast<int>(std::lround(r.x() / s)) + dx, static_cast<int>(std::lround(r.y() / s)) + dy);
+        if (c > 0) score += c, ++seen;
+      }
+      if (seen >= params_.min_macro_features && score > best_score) {
+        best_score = score;
+        best_dx = dx;
+        best_dy = dy;
+      }
+    }
+  // 2. Each MF at full resolution around its shifted reference, then its corner; 3. its
+  //    partner in the right view along the epipolar line; 4. triangulated.
+  int found = 0;
+  for (int i = 0; i < model_.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    known_[k] = false;
+    tracked_[k] = false;
+    if (best_score <= 0) continue;
+    const Eigen::Vector2d guess = model_.reference_px[k] + Eigen::Vector2d(best_dx * s, best_dy * s);
+    double best = -1;
+    Eigen::Vector2d p = guess;
+    const int gx = static_cast<int>(std::lround(guess.x())), gy = static_cast<int>(std::lround(guess.y()));
+    for (int y = gy - s - 2; y <= gy + s + 2; ++y)
+      for (int x = gx - s - 2; x <= gx + s + 2; ++x) {
+        const double c = ncc(model_.templates[k], L, 0, x, y);
+        if (c > best) best = c, p = {x, y};
+      }
+    if (best < params_.min_ncc || !refine_corner(L, p, params_.corner_radius)) continue;
+    Eigen::Vector2d r;
+    if (!find_right(i, p, r)) continue;
+    auto& o = estimate_.mfs[k];
+    o.valid = o.inlier = true;
+    o.left = p;
+    o.right = r;
+    o.p_CamR = rig_.triangulate_observed(p, r);
+    reference_P_[k] = o.p_CamR;
+    known_[k] = tracked_[k] = true;
+    prev_left_[k] = p;
+    prev_right_[k] = r;
+    velocity_[k].setZero();
+    patch_[k] = model_.templates[k];
+    extract_patch(L, 0, p, kTemplateRadius, patch_[k]);
+    ++found;
+  }
+  estimate_.tracked = estimate_.inliers = found;
+  estimate_.rms = 0;
+  if (found < params_.min_macro_features) {
+    known_.fill(false);
+    tracked_.fill(false);
+    estimate_.status = TrackStatus::kSearching;
+    estimate_.reason = best_score <= 0 ? "no position of the panel type's template set matches"
+                                       : "too few macro-features found in both views";
+    searching_ = true;
+    return;
+  }
+  for (int i = 0; i < model_.count; ++i)
+    if (!known_[static_cast<std::size_t>(i)]) patch_[static_cast<std::size_t>(i)] = model_.templates[static_cast<std::size_t>(i)];
+  estimate_.status = TrackStatus::kReinitialised;
+  estimate_.X_CamR_P = Eigen::Isometry3d::Identity();
+  ++estimate_.reference_serial;
+  searching_ = false;
+  lost_frames_ = 0;
+}
+
+void PanelTracker::track() {
+  const Pyramid& prev = left_[cur_ ^ 1];
+  const Pyramid& L = left_[cur_];
+  for (int i = 0; i < model_.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    if (!tracked_[k]) continue;
+    tracked_[k] = false;
+    // Frame to frame in the left view, seeded by the MF's last motion, checked backwards.
+    const LkResult fwd = track_point(prev, L, prev_left_[k], prev_left_[k] + velocity_[k], params_.lk);
+    if (fwd.status != LkStatus::kOk) continue;
+    const LkResult back = track_point(L, prev, fwd.point, prev_left_[k], params_.lk);
+    if (back.status != LkStatus::kOk || (back.point - prev_left_[k]).norm() > params_.forward_backward_px) continue;
+    Eigen::Vector2d left = fwd.point;
+    if (!refine_corner(L, left, params_.corner_radius)) continue;
+    // Left to right, seeded by the last disparity.
+    const LkResult lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), params_.lk);
+    if (lr.status != LkStatus::kOk) continue;
+    Eigen::Vector2d right = lr.point;
+    if (!verify_pair(left, right)) continue;
+    auto& o = estimate_.mfs[k];
+    o.valid = true;
+    o.left = left;
+    o.right = right;
+    o.p_CamR = rig_.triangulate_observed(left, right);
+    velocity_[k] = left - prev_left_[k];
+    prev_left_[k] = left;
+    prev_right_[k] = right;
+    tracked_[k] = true;
+  }
+  fit_pose();
+  if (estimate_.has_pose()) reacquire();
+}
+
+void PanelTracker::fit_pose() {
+  std::array<Eigen::Vector3d, kMaxMacroFeatures> a{}, b{};
+  std::array<int, kMaxMacroFeatures> which{};
+  std::array<bool, kMaxMacroFeatures> inlier{};
+  std::size_t n = 0;
+  for (int i = 0; i < model_.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    if (!estimate_.mfs[k].valid || !known_[k]) continue;
+    a[n] = reference_P_[k];
+    b[n] = estimate_.mfs[k].p_CamR;
+    which[n++] = i;
+  }
+  estimate_.tracked = static_cast<int>(n);
+  RigidFit fit;
+  if (static_cast<int>(n) >= params_.min_macro_features) {
+    RobustFitOptions options;
+    options.inlier_threshold = params_.inlier_m;
+    options.max_iterations = params_.ransac_iterations;
+    options.seed = estimate_.seq + 1;
+    fit = fit_rigid_robust(std::span(a.data(), n), std::span(b.data(), n), options, std::span(inlier.data(), n));
+  }
+  if (!fit.valid || fit.used < params_.min_macro_features) {
+    estimate_.status = TrackStatus::kLost;
+    estimate_.reason = "too few macro-features consistent with a rigid motion";
+    estimate_.inliers = fit.valid ? fit.used : 0;
+    if (++lost_frames_ >= params_.lost_frames_to_reinit) {
+      searching_ = true;  // the next frame searches for the MFs anew
+      tracked_.fill(false);
+    }
+    return;
+  }
+  lost_frames_ = 0;
+  for (std::size_t j = 0; j < n; ++j) {
+    const auto k = static_cast<std::size_t>(which[j]);
+    estimate_.mfs[k].inlier = inlier[j];
+    if (!inlier[j]) tracked_[k] = false;  // broke the rigid motion: picked up again by reacquire
+  }
+  estimate_.status = TrackStatus::kTracking;
+  estimate_.X_CamR_P = fit.X_B_A;
+  estimate_.inliers = fit.used;
+  estimate_.rms = fit.rms;
+}
+
+void PanelTracker::reacquire() {
+  // MFs not tracked (occluded, out of view, rejected) whose position on the panel is
+  // known: look where the pose puts them; accept a corner that matches its template,
+  // pairs on the epipolar line and lands where the pose says.
+  const Pyramid& L = left_[cur_];
+  for (int i = 0; i < model_.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    if (tracked_[k] || !known_[k]) continue;
+    const Eigen::Vector3d p = estimate_.X_CamR_P * reference_P_[k];
+    Eigen::Vector2d left = rig_.project(Camera::kLeft, p), right = rig_.project(Camera::kRight, p);
+    if (!L.inside(0, left.x(), left.y(), params_.lk.radius + 2) || !right_.inside(0, right.x(), right.y(), params_.lk.radius + 2))
+      continue;
+    if (ncc(patch_[k], L, 0, static_cast<int>(std::lround(left.x())), static_cast<int>(std::lround(left.y()))) < params_.min_ncc)
+      continue;
+    if (!refine_corner(L, left, params_.corner_radius) || !verify_pair(left, right)) continue;
+    if ((rig_.triangulate_observed(left, right) - p).norm() > params_.inlier_m) continue;
+    prev_left_[k] = left;
+    prev_right_[k] = right;
+    velocity_[k].setZero();
+    tracked_[k] = true;  // used from the next frame on
+  }
+}
+
+}  // namespace markcell::vision

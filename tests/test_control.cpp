@@ -1,0 +1,160 @@
+// The marking side of control against closed-form answers: the inter-calibration and
+// its Table I metrics, the tool pose on known planes, and both predictors on known
+// motions, without allocating.
+#include <catch2/catch.hpp>
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "alloc_guard.hpp"
+#include "markcell/control/intercalibration.hpp"
+#include "markcell/control/predictor.hpp"
+#include "markcell/control/tool_pose.hpp"
+
+using namespace markcell;
+using namespace markcell::control;
+
+namespace {
+Eigen::Isometry3d pose(double rx, double ry, double rz, const Eigen::Vector3d& t) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = (Eigen::AngleAxisd(rz, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(ry, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(rx, Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix();
+  X.translation() = t;
+  return X;
+}
+}  // namespace
+
+TEST_CASE("inter-calibration: recovers X_P_SL, reports Table I metrics per axis, drops an outlier") {
+  const Eigen::Isometry3d X_P_SL = pose(0.1, -0.3, 0.05, {-0.4, 0.1, 1.2});
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  std::normal_distribution<double> noise(0.0, 0.001);
+  std::vector<Eigen::Vector3d> sl(10), p(10), noise_P(10);
+  bool known[10];
+  for (int i = 0; i < 10; ++i) {
+    sl[static_cast<std::size_t>(i)] = {u(rng), u(rng), 2.0 + 0.1 * u(rng)};
+    noise_P[static_cast<std::size_t>(i)] = {noise(rng), noise(rng), noise(rng)};
+    p[static_cast<std::size_t>(i)] = X_P_SL * sl[static_cast<std::size_t>(i)] + noise_P[static_cast<std::size_t>(i)];
+    known[i] = i != 3;  // one MF the marking station did not find
+  }
+  p[7] += Eigen::Vector3d(0.05, 0, 0);  // a wrong correspondence
+  IntercalibrationLimits limits;
+  limits.inlier_threshold = 0.01;
+  test::AllocationGuard guard;
+  const Intercalibration r = intercalibrate(sl, p, std::span(known, 10), limits);
+  CHECK(guard.allocations() == 0);
+  REQUIRE(r.status == IntercalibrationStatus::kOk);
+  CHECK(r.paired == 9);
+  CHECK(r.inliers == 8);
+  // On the panel (2 m from SL's origin, where a rotation error is leveraged) the fitted
+  // transform is within the noise of the true one.
+  for (const auto& q : sl) CHECK((r.X_P_SL * q - X_P_SL * q).norm() < 0.002);
+  // The metrics are those of the residuals of the fitted transform, axis by axis.
+  Eigen::Vector3d max_abs = Eigen::Vector3d::Zero(), sq = Eigen::Vector3d::Zero();
+  for (int i : {0, 1, 2, 4, 5, 6, 8, 9}) {
+    const Eigen::Vector3d e = r.X_P_SL * sl[static_cast<std::size_t>(i)] - p[static_cast<std::size_t>(i)];
+    max_abs = max_abs.cwiseMax(e.cwiseAbs());
+    sq += e.cwiseAbs2();
+  }
+  CHECK((r.max_abs - max_abs).norm() < 1e-12);
+  CHECK((r.rms - (sq / 8).cwiseSqrt()).norm() < 1e-12);
+  CHECK(r.max_abs.maxCoeff() < 0.004);
+
+  limits.max_abs_error = 0.0005;
+  CHECK(intercalibrate(sl, p, std::span(known, 10), limits).status == IntercalibrationStatus::kAboveLimit);
+  bool few[10] = {true, true, true, false, false, false, false, false, false, false};
+  CHECK(intercalibrate(sl, p, std::span(few, 10), limits).status == IntercalibrationStatus::kTooFewPoints);
+}
+
+TEST_CASE("tool pose: plane normal towards the cameras, centre, contact point, stand-off; degenerate clusters rejected") {
+  // A plane through c with normal n (tilted, facing the camera at the origin), a ding in it.
+  const Eigen::Vector3d n = Eigen::Vector3d(0.2, -0.1, -1.0).normalized();
+  const Eigen::Vector3d c(0.3, -0.2, 3.0);
+  const Eigen::Vector3d a = n.unitOrthogonal(), b = n.cross(a);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = -4; i <= 4; ++i)
+    for (int j = -4; j <= 4; ++j) {
+      const double s = i * 0.003, t = j * 0.003;
+      const double dent = 0.0004 * std::exp(-(s * s + t * t) / (2 * 0.006 * 0.006));
+      pts.push_back(c + s * a + t * b - dent * n);
+    }
+  const DefectToolPose r = tool_pose(pts, 0.2);
+  REQUIRE(r.status == ToolPoseStatus::kOk);
+  CHECK(r.normal.dot(n) > 0.9999);  // oriented out of the surface, towards the cameras
+  CHECK((r.centre - c).norm() < 0.0005);
+  // The contact point is the point with the smallest depth.
+  double zmin = 1e9;
+  for (const auto& p : pts) zmin = std::min(zmin, p.z());
+  CHECK(r.contact.z() == zmin);
+  // O_V is right-handed with Z = normal; the nozzle sits on Z, at least the stand-off from
+  // every point along it, and looks back at the centre.
+  CHECK((r.X_P_Tool.linear().col(2) - r.normal).norm() < 1e-12);
+  CHECK(std::abs(r.X_P_Tool.linear().determinant() - 1) < 1e-12);
+  const Eigen::Vector3d nozzle = r.X_P_Nozzle.translation();
+  CHECK(((nozzle - r.centre).normalized() - r.normal).norm() < 1e-9);
+  for (const auto& p : pts) CHECK((nozzle - p).dot(r.normal) >= 0.2 - 1e-12);
+  CHECK((nozzle - r.centre).norm() < 0.2 + 0.0006);
+
+  std::vector<Eigen::Vector3d> line;
+  for (int i = 0; i < 10; ++i) line.push_back(c + i * 0.002 * a);
+  CHECK(tool_pose(line, 0.2).status == ToolPoseStatus::kCollinear);
+  CHECK(tool_pose(std::span(pts.data(), 3), 0.2).status == ToolPoseStatus::kTooFewPoints);
+  std::vector<Eigen::Vector3d> edge_on;  // a plane containing the line of sight
+  for (int i = -3; i <= 3; ++i)
+    for (int j = -3; j <= 3; ++j) edge_on.push_back(Eigen::Vector3d(0, 0, 3) + i * 0.003 * Eigen::Vector3d::UnitY() + j * 0.003 * Eigen::Vector3d::UnitZ());
+  CHECK(tool_pose(edge_on, 0.2).status == ToolPoseStatus::kFacingAway);
+}
+
+TEST_CASE("two-frame predictor: applying the last motion twice, as the paper") {
+  PredictorParams params;
+  params.kind = PredictorKind::kTwoFrame;
+  PosePredictor predictor(params);
+  const Eigen::Vector3d anchor(0.1, 0.0, 3.1);
+  predictor.reset(anchor);
+  const Eigen::Isometry3d X1 = pose(0, 0.01, 0, {0.02, 0, 0});
+  const Eigen::Isometry3d M = pose(0, 0.004, 0, {0.012, 0.001, -0.002});  // the motion between frames, in CamR
+  const Eigen::Isometry3d X2 = M * X1;
+  predictor.update(seconds(10), X1);
+  CHECK_FALSE(predictor.ready());
+  predictor.update(seconds(12), X2);
+  REQUIRE(predictor.ready());
+  test::AllocationGuard guard;
+  const Eigen::Isometry3d X = predictor.predict(seconds(16));  // two intervals on
+  CHECK(guard.allocations() == 0);
+  // The anchor moves by the anchor's displacement twice, the rotation turns twice.
+  const Eigen::Vector3d expected_anchor = X2 * anchor + 2 * (X2 * anchor - X1 * anchor);
+  CHECK((X * anchor - expected_anchor).norm() < 1e-12);
+  CHECK(Eigen::AngleAxisd(X.linear().transpose() * (M.linear() * M.linear() * X2.linear())).angle() < 1e-12);
+}
+
+TEST_CASE("Kalman predictor: constant speed with a turn, through noise, predicts half a second ahead within a millimetre") {
+  PosePredictor predictor(PredictorParams{});
+  const Eigen::Vector3d anchor(-0.2, 0.0, 3.1);
+  predictor.reset(anchor);
+  std::mt19937 rng(9);
+  std::normal_distribution<double> lat(0, 0.0004), dep(0, 0.002), rot(0, 0.001);
+  auto truth = [&](double t) { return pose(0, 0.01 * t, 0, {0.015 * t, 0, 0.002 * t}); };
+  std::size_t allocations = 0;
+  for (int k = 0; k <= 300; ++k) {  // 10 s at 30 Hz
+    const double t = k / 30.0;
+    Eigen::Isometry3d m = truth(t);
+    m.linear() = (Eigen::AngleAxisd(rot(rng), Eigen::Vector3d::UnitY()) * m.linear()).eval();
+    m.translation() += Eigen::Vector3d(lat(rng), lat(rng), dep(rng)) - (m.linear() - truth(t).linear()) * anchor;
+    test::AllocationGuard guard;
+    predictor.update(static_cast<Nanos>(std::llround(t * 1e9)), m);
+    allocations += guard.allocations();
+  }
+  CHECK(allocations == 0);
+  const Eigen::Isometry3d X = predictor.predict(millis(10500));
+  const Eigen::Vector3d err = X * anchor - truth(10.5) * anchor;
+  INFO("prediction error at the anchor: " << err.transpose() * 1000 << " mm");
+  CHECK(std::abs(err.x()) < 0.001);
+  CHECK(std::abs(err.y()) < 0.001);
+  CHECK(std::abs(err.z()) < 0.002);
+  // A point 40 cm off the anchor rotates with the panel.
+  const Eigen::Vector3d q = anchor + Eigen::Vector3d(0.4, 0.1, 0);
+  CHECK((X * q - truth(10.5) * q).norm() < 0.003);
+}

@@ -32,7 +32,7 @@ TEST_CASE("check-config: valid file exits 0, a bad one prints every error and ex
   text.replace(text.find("base_tick_us: 1000"), 18, "base_tick_us: 0");
   text.replace(text.find("baud: 115200"), 12, "baud: 115201");
   const std::string file = dir.write("cell.yaml", text);
-  for (const char* cal : {"calibration/marking_stereo.yaml", "calibration/base.yaml"})
+  for (const char* cal : {"calibration/marking_stereo.yaml", "calibration/base.yaml", "panels/door.yaml", "panels/fender.yaml"})
     dir.write(cal, markcell::test::read_file(source_path(std::string("config/") + cal)));
   const auto bad = run_command(kMarkcell + " check-config " + file);
   INFO(bad.output);

@@ -85,15 +85,19 @@ TEST_CASE("the example configuration loads") {
   const auto cfg = load_config(test::source_path("config/cell.example.yaml"), task_catalog());
   CHECK(cfg.name == "marking-station-sim");
   CHECK(cfg.executive.tick == millis(1));
-  REQUIRE(cfg.executive.lanes.size() == 1);
+  REQUIRE(cfg.executive.lanes.size() == 2);
   CHECK(cfg.executive.lanes[0].priority == 80);
-  REQUIRE(cfg.executive.tasks.size() == 4);
+  CHECK(cfg.executive.lanes[1].name == "vision");
+  REQUIRE(cfg.executive.tasks.size() == 6);
   CHECK(cfg.executive.tasks[0].budget == micros(200));
   CHECK(cfg.executive.tasks[0].overrun == control::OverrunPolicy::kSafeStop);
   CHECK(cfg.gpio.lines[static_cast<std::size_t>(LineRole::kPlcEstop)].active_low);
   CHECK(std::filesystem::path(cfg.calibration.stereo).is_absolute());
   CHECK(std::filesystem::exists(cfg.calibration.base));
-  CHECK(cfg.panel_types.size() == 2);
+  REQUIRE(cfg.panel_types.size() == 2);
+  CHECK(std::filesystem::exists(cfg.panel_types[0].file));
+  CHECK(cfg.marking.predictor == "kalman");
+  CHECK(cfg.vision.epipolar_px == 1.0);
 }
 
 TEST_CASE_METHOD(Fixture, "a valid configuration has no error") { CHECK(check(kValid).empty()); }
@@ -144,7 +148,7 @@ TEST_CASE_METHOD(Fixture, "references to undeclared lanes and unknown tasks") {
   const auto m = messages(e);
   for (const auto& x : m) UNSCOPED_INFO(x);
   REQUIRE(m.size() == 2);
-  CHECK(m[0] == file() + ":10:5: executive.tasks.vision_track: unknown task 'vision_track' (markcell provides: plc_io, spray_valve, arm_link, sim_world)");
+  CHECK(m[0] == file() + ":10:5: executive.tasks.vision_track: unknown task 'vision_track' (markcell provides: plc_io, spray_valve, arm_link, sim_world, vision, marking)");
   CHECK(m[1] == file() + ":10:26: executive.tasks.vision_track.lane: lane 'vison' is not declared in executive.lanes "
                          "(declared: control)");
 }

@@ -13,6 +13,7 @@ std::string_view to_string(FaultCode code) {
     case FaultCode::kDeviceFault: return "device_fault";
     case FaultCode::kOperatorStop: return "operator_stop";
     case FaultCode::kShutdown: return "shutdown";
+    case FaultCode::kFrameDropped: return "frame_dropped";
   }
   return "unknown";
 }

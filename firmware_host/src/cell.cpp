@@ -1,5 +1,7 @@
 #include "markcell/host/cell.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 #include "markcell/drivers/gpiod_lines.hpp"
@@ -12,6 +14,8 @@ const std::vector<std::string>& task_catalog() {
       "spray_valve",  // opens and closes the valve on the tick (control lane)
       "arm_link",     // polls the arm link, link faults -> safe stop, holds the arm on a stop
       "sim_world",    // advances the simulated devices (only with simulated devices)
+      "vision",       // frames -> macro-features -> panel pose (vision lane)
+      "marking",      // inter-calibration, prediction, the marking sequence (control lane)
   };
   return kTasks;
 }
@@ -24,7 +28,59 @@ drivers::CanArmLinkConfig can_link_config(const CanConfig& c) {
 }  // namespace
 
 control::TaskResult Cell::SimWorld::task(control::TaskContext& ctx, void* self) {
-  static_cast<SimWorld*>(self)->arm->poll(ctx.now());
+  auto* w = static_cast<SimWorld*>(self);
+  w->arm->poll(ctx.now());
+  // Runs after spray_valve in the tick: a valve that opened this tick is open now.
+  const bool open = w->valve != nullptr && w->valve->open();
+  if (open && !w->valve_was_open) {
+    w->sprays[w->spray_count % w->sprays.size()] = SimSpray{ctx.now(), w->arm->model().tool()};
+    ++w->spray_count;
+  }
+  w->valve_was_open = open;
+  return control::TaskResult::kOk;
+}
+
+control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self) {
+  auto* v = static_cast<VisionTask*>(self);
+  if (v->requests->update()) {
+    const control::TrackerRequest& r = v->requests->read();
+    if (r.reset_serial != v->reset_seen) {
+      v->reset_seen = r.reset_serial;
+      v->active = std::clamp(r.panel_type, 0, static_cast<int>(v->trackers.size()) - 1);
+      v->trackers[static_cast<std::size_t>(v->active)]->reset();
+    }
+    vision::PanelTracker& t = *v->trackers[static_cast<std::size_t>(v->active)];
+    if (r.reference_serial != 0 && r.reference_serial == t.last().reference_serial && r.reference_serial != v->hint_seen) {
+      v->hint_seen = r.reference_serial;
+      for (int i = 0; i < vision::kMaxMacroFeatures; ++i)
+        if (r.known[static_cast<std::size_t>(i)] && !t.reference_known()[static_cast<std::size_t>(i)])
+          t.set_reference(i, r.reference_P[static_cast<std::size_t>(i)]);
+    }
+  }
+  if (v->source == nullptr) return control::TaskResult::kOk;
+  vision::StereoFrameRef f;
+  const vision::FrameResult got = v->source->next(ctx.now(), f);
+  if (got == vision::FrameResult::kStalled) {
+    ++v->stats.stalls;
+    control::Fault fault{ctx.now(), control::FaultCode::kDeviceFault, {}, {}};
+    fault.source.assign("vision");
+    fault.detail.assign("frame source stalled: no frame within its timeout");
+    v->faults->push(fault);
+    return control::TaskResult::kOk;
+  }
+  if (got != vision::FrameResult::kFrame) return control::TaskResult::kOk;
+  ++v->stats.frames;
+  if (f.dropped) {
+    ++v->stats.dropped;
+    control::Fault fault{ctx.now(), control::FaultCode::kFrameDropped, {}, {}};
+    fault.source.assign("vision");
+    fault.detail.assign(f.problem);
+    v->faults->push(fault);
+    return control::TaskResult::kOk;
+  }
+  const vision::PoseEstimate& e = v->trackers[static_cast<std::size_t>(v->active)]->process(f.seq, f.time, *f.left, *f.right);
+  if (e.has_pose()) ++v->stats.poses;
+  v->estimates->write(e);
   return control::TaskResult::kOk;
 }
 
@@ -115,6 +171,73 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
   }
   arm_supervision_ = std::make_unique<control::ArmSupervision>(*arm_link_, safe_stop_,
                                                                config.safe_stop.arm == ArmSafeAction::kHome);
+  if (sim_world_) sim_world_->valve = spray_valve_.get();
+
+  // Vision and marking, when configured: the rig model, one tracker per panel type, the
+  // frame source, and the buffers between the lanes.
+  const auto has_task = [&](std::string_view name) {
+    return std::any_of(config.executive.tasks.begin(), config.executive.tasks.end(),
+                       [&](const control::TaskSpec& t) { return t.name == name; });
+  };
+  if (!config.calibration.base.empty()) X_Base_CamR_ = vision::load_pose(config.calibration.base, "X_Base_CamR");
+  estimates_ = std::make_unique<TripleBuffer<vision::PoseEstimate>>();
+  tracker_requests_ = std::make_unique<TripleBuffer<control::TrackerRequest>>();
+  if (has_task("vision")) {
+    rig_ = std::make_unique<vision::StereoRig>(vision::load_stereo_calibration(config.calibration.stereo));
+    vision::TrackerParams tp;
+    tp.lk.radius = config.vision.lk_window_px / 2;
+    tp.pyramid_levels = config.vision.pyramid_levels;
+    tp.epipolar_px = config.vision.epipolar_px;
+    tp.min_ncc = config.vision.min_ncc;
+    tp.min_macro_features = config.vision.min_macro_features;
+    tp.inlier_m = config.vision.inlier_mm / 1000.0;
+    tp.depth_min = config.vision.depth_min_m;
+    tp.depth_max = config.vision.depth_max_m;
+    tp.forward_backward_px = config.vision.forward_backward_px;
+    tp.lost_frames_to_reinit = config.vision.lost_frames_to_reinit;
+    vision_ = std::make_unique<VisionTask>();
+    for (const auto& panel : config.panel_types) {
+      panel_models_.push_back(vision::load_panel_type(panel.file));
+      vision_->trackers.push_back(std::make_unique<vision::PanelTracker>(*rig_, panel_models_.back(), tp));
+    }
+    if (config.cameras.source == CameraSource::kRecording)
+      frame_source_ = std::make_unique<vision::RecordingFrameSource>(config.cameras.recording, config.cameras.latency,
+                                                                     clock == ClockKind::kSimulated);
+    else if (config.cameras.source == CameraSource::kAravis)
+      throw std::runtime_error(config.file + ": devices.cameras.source aravis: the live camera binding of the vision task is not in this build yet; use recording");
+    vision_->source = frame_source_.get();
+    vision_->estimates = estimates_.get();
+    vision_->requests = tracker_requests_.get();
+    vision_->faults = &faults_;
+  }
+  if (has_task("marking")) {
+    control::MarkingParams mp;
+    mp.X_Base_CamR = X_Base_CamR_;
+    mp.standoff = config.marking.standoff_m;
+    mp.reach = config.arm.limits.reach;
+    mp.command_lead = config.marking.command_lead;
+    mp.settle_position = config.marking.settle_mm / 1000.0;
+    mp.settle_angle = config.marking.settle_deg * M_PI / 180.0;
+    mp.settle_time = config.marking.settle;
+    mp.max_prediction_age = config.marking.max_prediction_age;
+    mp.pulse = config.spray.pulse;
+    mp.defect_timeout = config.marking.defect_timeout;
+    mp.acquire_timeout = config.marking.acquire_timeout;
+    mp.home_timeout = config.marking.home_timeout;
+    mp.line_direction_CamR = Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1],
+                                             config.marking.line_direction[2]).normalized();
+    mp.intercalibration.max_abs_error = config.marking.intercalibration_limit_mm / 1000.0;
+    mp.predictor.kind = config.marking.predictor == "two-frame" ? control::PredictorKind::kTwoFrame : control::PredictorKind::kKalman;
+    mp.predictor.accel_sigma = config.marking.accel_sigma;
+    mp.predictor.lateral_sigma = config.marking.lateral_sigma_mm / 1000.0;
+    mp.predictor.depth_sigma = config.marking.depth_sigma_mm / 1000.0;
+    control::PlcLineMap lines;
+    lines.busy = gpio_line(LineRole::kPlcBusy);
+    lines.done = gpio_line(LineRole::kPlcDone);
+    lines.fault = gpio_line(LineRole::kPlcFault);
+    marking_ = std::make_unique<control::MarkingSequence>(mp, *arm_link_, *spray_valve_, *gpio_, lines, *plc_io_,
+                                                          *estimates_, *tracker_requests_);
+  }
 
   executive_ = std::make_unique<control::Executive>(config.executive, *clock_, safe_stop_);
   for (const auto& task : config.executive.tasks) {
@@ -122,6 +245,8 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     else if (task.name == "spray_valve") executive_->bind(task.name, &control::SprayValve::task, spray_valve_.get());
     else if (task.name == "arm_link") executive_->bind(task.name, &control::ArmSupervision::task, arm_supervision_.get());
     else if (task.name == "sim_world" && sim_world_) executive_->bind(task.name, &SimWorld::task, sim_world_.get());
+    else if (task.name == "vision" && vision_) executive_->bind(task.name, &VisionTask::task, vision_.get());
+    else if (task.name == "marking" && marking_) executive_->bind(task.name, &control::MarkingSequence::task, marking_.get());
     else throw std::logic_error("task '" + task.name + "' passed validation but has no binding");
   }
   if (config.watchdog.systemd) executive_->add_watchdog(notifier_);
@@ -150,6 +275,7 @@ void Cell::start() {
   if (watchdog_device_) watchdog_device_->activate();
   if (sim_world_) sim_world_->arm->start(clock_->now(0));
   arm_link_->activate(clock_->now(0));
+  if (frame_source_) frame_source_->start(clock_->now(0));
   executive_->start();
   started_ = true;
   if (config_.watchdog.systemd) notifier_.ready();
@@ -161,6 +287,7 @@ void Cell::shutdown(control::FaultCode code, std::string_view source, std::strin
   if (config_.watchdog.systemd) notifier_.stopping();
   safe_stop_.trigger(clock_->now(0), code, source, detail);
   executive_->stop();
+  if (frame_source_) frame_source_->stop();
   arm_link_->deactivate();
   gpio_->deactivate();
   if (watchdog_device_) watchdog_device_->deactivate();

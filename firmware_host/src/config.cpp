@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "markcell/vision/calibration_io.hpp"
+#include "markcell/vision/panel_tracker.hpp"
 
 namespace markcell::host {
 
@@ -481,7 +482,8 @@ void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
 
 void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
   const std::string P = "devices.cameras";
-  if (!r.map(node, P, {"source", "left_id", "right_id", "width", "height", "fps", "exposure_us", "gain_db", "trigger"}))
+  if (!r.map(node, P, {"source", "left_id", "right_id", "width", "height", "fps", "exposure_us", "gain_db", "trigger",
+                       "latency_ms", "recording"}))
     return;
   r.choice(node, P, "source", c.source,
            {{"simulated", CameraSource::kSimulated}, {"aravis", CameraSource::kAravis}, {"recording", CameraSource::kRecording}});
@@ -496,6 +498,14 @@ void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
   r.number(node, P, "exposure_us", c.exposure_us, 1.0, 1e6);
   r.number(node, P, "gain_db", c.gain_db, 0.0, 48.0, false);
   r.choice(node, P, "trigger", c.trigger, {{"software", CameraTrigger::kSoftware}, {"hardware", CameraTrigger::kHardware}});
+  long long latency = 15;
+  r.integer(node, P, "latency_ms", latency, 0, 1000, false);
+  c.latency = millis(latency);
+  if (c.source == CameraSource::kRecording) {
+    r.existing_file(node, P, "recording", c.recording);
+  } else if (node["recording"].IsDefined()) {
+    r.error(node["recording"], P + ".recording", "only used with source: recording");
+  }
   if (c.fps > 0 && c.exposure_us > 1e6 / c.fps)
     r.error(node["exposure_us"], P + ".exposure_us", "exposure longer than the frame period at the configured fps");
 }
@@ -535,9 +545,79 @@ void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
     const std::string TP = P + "." + name;
     PanelTypeConfig panel;
     panel.name = name;
-    if (r.map(kv.second, TP, {"macro_features"})) r.integer(kv.second, TP, "macro_features", panel.macro_features, 3, 64);
+    if (r.map(kv.second, TP, {"macro_features", "file"})) {
+      r.integer(kv.second, TP, "macro_features", panel.macro_features, 3, 16);
+      if (kv.second["file"].IsDefined()) {
+        r.existing_file(kv.second, TP, "file", panel.file);
+        if (!panel.file.empty()) {
+          try {
+            const auto model = vision::load_panel_type(panel.file);
+            if (model.count != panel.macro_features)
+              r.error(kv.second["file"], TP + ".file",
+                      "has " + std::to_string(model.count) + " macro-features, macro_features says " +
+                          std::to_string(panel.macro_features));
+            if (model.name != name)
+              r.error(kv.second["file"], TP + ".file", "is the panel type '" + model.name + "', not '" + name + "'");
+          } catch (const std::exception& e) {
+            r.error(kv.second["file"], TP + ".file", e.what());
+          }
+        }
+      }
+    }
     cfg.panel_types.push_back(panel);
   }
+}
+
+void read_vision(Reader& r, const YAML::Node& node, VisionConfig& v) {
+  const std::string P = "vision";
+  if (!r.map(node, P, {"epipolar_px", "min_ncc", "lk_window_px", "pyramid_levels", "min_macro_features", "inlier_mm",
+                       "depth_min_m", "depth_max_m", "forward_backward_px", "lost_frames_to_reinit"}))
+    return;
+  r.number(node, P, "epipolar_px", v.epipolar_px, 0.05, 20.0, false);
+  r.number(node, P, "min_ncc", v.min_ncc, 0.0, 1.0, false);
+  r.integer(node, P, "lk_window_px", v.lk_window_px, 5, 2 * vision::kMaxLkRadius + 1, false);
+  if (v.lk_window_px % 2 == 0) r.error(node["lk_window_px"], P + ".lk_window_px", "must be odd (a window centred on the point)");
+  r.integer(node, P, "pyramid_levels", v.pyramid_levels, 3, vision::kMaxPyramidLevels, false);
+  r.integer(node, P, "min_macro_features", v.min_macro_features, 3, vision::kMaxMacroFeatures, false);
+  r.number(node, P, "inlier_mm", v.inlier_mm, 0.1, 100.0, false);
+  r.number(node, P, "depth_min_m", v.depth_min_m, 0.1, 50.0, false);
+  r.number(node, P, "depth_max_m", v.depth_max_m, 0.1, 50.0, false);
+  if (v.depth_min_m >= v.depth_max_m) r.error(node["depth_max_m"], P + ".depth_max_m", "must be greater than depth_min_m");
+  r.number(node, P, "forward_backward_px", v.forward_backward_px, 0.01, 10.0, false);
+  r.integer(node, P, "lost_frames_to_reinit", v.lost_frames_to_reinit, 1, 10'000, false);
+}
+
+void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
+  const std::string P = "marking";
+  if (!r.map(node, P, {"standoff_m", "command_lead_ms", "settle_mm", "settle_deg", "settle_ms", "max_prediction_age_ms",
+                       "defect_timeout_s", "acquire_timeout_s", "home_timeout_s", "predictor", "intercalibration_limit_mm",
+                       "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm"}))
+    return;
+  r.number(node, P, "standoff_m", m.standoff_m, 0.01, 1.0, false);
+  long long lead = 10, settle = 40, age = 400;
+  double defect = 6, acquire = 10, home = 10;
+  r.integer(node, P, "command_lead_ms", lead, 0, 1000, false);
+  r.number(node, P, "settle_mm", m.settle_mm, 0.05, 50.0, false);
+  r.number(node, P, "settle_deg", m.settle_deg, 0.01, 30.0, false);
+  r.integer(node, P, "settle_ms", settle, 0, 10'000, false);
+  r.integer(node, P, "max_prediction_age_ms", age, 1, 60'000, false);
+  r.number(node, P, "defect_timeout_s", defect, 0.1, 600.0, false);
+  r.number(node, P, "acquire_timeout_s", acquire, 0.1, 600.0, false);
+  r.number(node, P, "home_timeout_s", home, 0.1, 600.0, false);
+  r.choice(node, P, "predictor", m.predictor, {{"kalman", std::string("kalman")}, {"two-frame", std::string("two-frame")}}, false);
+  r.number(node, P, "intercalibration_limit_mm", m.intercalibration_limit_mm, 0.1, 1000.0, false);
+  r.vec3(node, P, "line_direction", m.line_direction, -1.0, 1.0, false);
+  if (std::hypot(m.line_direction[0], m.line_direction[1], m.line_direction[2]) < 0.5)
+    r.error(node["line_direction"], P + ".line_direction", "must be a unit vector (the line's travel in CamR)");
+  r.number(node, P, "accel_sigma_m_s2", m.accel_sigma, 1e-6, 10.0, false);
+  r.number(node, P, "lateral_sigma_mm", m.lateral_sigma_mm, 1e-3, 100.0, false);
+  r.number(node, P, "depth_sigma_mm", m.depth_sigma_mm, 1e-3, 100.0, false);
+  m.command_lead = millis(lead);
+  m.settle = millis(settle);
+  m.max_prediction_age = millis(age);
+  m.defect_timeout = static_cast<Nanos>(defect * 1e9);
+  m.acquire_timeout = static_cast<Nanos>(acquire * 1e9);
+  m.home_timeout = static_cast<Nanos>(home * 1e9);
 }
 
 }  // namespace
@@ -584,7 +664,8 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   } catch (const YAML::Exception& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML: " + e.msg}});
   }
-  if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "spray", "devices", "calibration", "panel_types"}))
+  if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "spray", "devices", "calibration", "panel_types",
+                      "vision", "marking"}))
     throw ConfigInvalid(errors);
 
   if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name"}))
@@ -615,6 +696,8 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   }
   if (const auto c = r.child(root, "", "calibration", true)) read_calibration(r, *c, cfg);
   if (const auto p = r.child(root, "", "panel_types", true)) read_panel_types(r, *p, cfg);
+  if (const auto v = r.child(root, "", "vision", false)) read_vision(r, *v, cfg.vision);
+  if (const auto m = r.child(root, "", "marking", false)) read_marking(r, *m, cfg.marking);
 
   // Simulated devices are advanced by the sim_world task: one without the other is a
   // configuration that cannot run.
@@ -634,6 +717,20 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
       r.error(tasks, "executive.tasks", "the spray_valve task must be in the table (it times the valve)");
     if (!tasks["arm_link"].IsDefined())
       r.error(tasks, "executive.tasks", "the arm_link task must be in the table (it supervises the arm)");
+    const bool has_vision = tasks["vision"].IsDefined(), has_marking = tasks["marking"].IsDefined();
+    if (has_marking && !has_vision)
+      r.error(tasks["marking"], "executive.tasks.marking", "the marking task needs the vision task in the table");
+    if (has_vision && cfg.calibration.stereo.empty())
+      r.error(tasks["vision"], "executive.tasks.vision", "the vision task needs calibration.stereo");
+    const YAML::Node types = const_root["panel_types"];
+    const auto file_given = [&](const std::string& name) {
+      return is_map(types) && is_map(types[name]) && types[name]["file"].IsDefined();
+    };
+    if (has_vision)
+      for (const auto& panel : cfg.panel_types)
+        if (panel.file.empty() && !file_given(panel.name))
+          r.error(tasks["vision"], "executive.tasks.vision",
+                  "panel type '" + panel.name + "' has no file (panel_types." + panel.name + ".file, made by markcell select-mfs)");
   }
   if (!errors.empty()) throw ConfigInvalid(std::move(errors));
   // The loader has checked everything the executive checks; this is the last line of

@@ -14,7 +14,13 @@
 #include "markcell/host/bench.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/host/rig/replay.hpp"
+#include "markcell/host/rig/scenario.hpp"
+#include "markcell/vision/panel_tracker.hpp"
 #include "markcell/vision/stereo_calibration.hpp"
+
+#include <filesystem>
+#include <opencv2/imgcodecs.hpp>
 
 namespace {
 
@@ -147,6 +153,91 @@ int calibrate_stereo_command(const std::string& folder, const std::string& board
   return 0;
 }
 
+std::optional<CellConfig> load_or_report(const std::string& file) {
+  try {
+    return load_config(file, task_catalog());
+  } catch (const ConfigInvalid& e) {
+    for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
+    std::cerr << e.errors().size() << " error(s) in " << file << "\n";
+    return std::nullopt;
+  }
+}
+
+int replay_command(const CellConfig& config, const std::string& recording, const std::string& out,
+                   const rig::ReplayOptions& base) {
+  rig::ReplayOptions options = base;
+  options.out_dir = out;
+  const rig::ReplayReport report = rig::replay_recording(config, recording, options);
+  const auto files = rig::write_report(report, config, out);
+  std::cout << rig::report_table(report, files);
+  return 0;
+}
+
+int sim_command(const CellConfig& config, const std::string& scenario_name, std::uint64_t seed, double seconds_limit,
+                double fps, const std::string& scanner_file, const std::string& out, const rig::ReplayOptions& options) {
+  const rig::Scenario scenario = rig::make_scenario(scenario_name, seed);
+  const std::filesystem::path recording = std::filesystem::path(out) / "recording";
+  // The folder is the rig's own output: a previous run's recording is replaced.
+  if (std::filesystem::exists(recording / "recording.yaml")) std::filesystem::remove_all(recording);
+  const auto marking = vision::load_stereo_calibration(config.calibration.stereo);
+  const auto scanner = vision::load_stereo_calibration(scanner_file);
+  rig::GenerateOptions g;
+  if (seconds_limit > 0) g.max_duration = static_cast<Nanos>(seconds_limit * 1e9);
+  g.fps = fps;
+  if (options.progress) std::cerr << "markcell sim: rendering " << scenario_name << " into " << recording.string() << "\n";
+  const std::size_t frames = rig::generate_recording(scenario, recording.string(), marking, scanner, vision::RenderSettings{}, g);
+  if (options.progress) std::cerr << "markcell sim: " << frames << " stereo frames; replaying through the cell\n";
+  return replay_command(config, recording.string(), out, options);
+}
+
+int select_mfs_command(const std::string& image, const std::string& panel, const std::string& out,
+                       const std::vector<std::string>& positions, const std::string& scenario, int snap, int search_x,
+                       int search_y) {
+  vision::PanelTypeModel model;
+  if (!scenario.empty()) {
+    // The rig's stand-in for the installation engineer: the scenario's panel rendered
+    // square to the left camera, its MFs where the panel model has them.
+    const auto s = rig::make_scenario(scenario, 1);
+    const auto cal = vision::load_stereo_calibration("config/calibration/marking_stereo.yaml");
+    cv::Mat reference;
+    model = rig::reference_panel_type(s, cal, vision::RenderSettings{}, &reference);
+    if (!image.empty()) cv::imwrite(image, reference);
+  } else {
+    if (positions.empty()) {
+      std::cerr << "markcell select-mfs: give the MFs with --mf X,Y (one per MF, in order), or use --from-scenario\n";
+      return kExitConfig;
+    }
+    const cv::Mat img = cv::imread(image, cv::IMREAD_GRAYSCALE);
+    if (img.empty()) {
+      std::cerr << "markcell select-mfs: --image " << image << ": cannot read it as an image\n";
+      return kExitConfig;
+    }
+    std::vector<Eigen::Vector2d> px;
+    for (const auto& p : positions) {
+      double x = 0, y = 0;
+      char comma = 0;
+      if (std::sscanf(p.c_str(), "%lf%c%lf", &x, &comma, &y) != 3 || comma != ',') {
+        std::cerr << "markcell select-mfs: --mf '" << p << "': expected X,Y in pixels\n";
+        return kExitConfig;
+      }
+      px.emplace_back(x, y);
+    }
+    try {
+      model = vision::make_panel_type(panel, img, px, snap, search_x, search_y);
+    } catch (const std::exception& e) {
+      std::cerr << "markcell select-mfs: " << e.what() << "\n";
+      return kExitConfig;
+    }
+  }
+  vision::save_panel_type(out, model);
+  std::cout << "panel type '" << model.name << "': " << model.count << " macro-features\n";
+  for (int i = 0; i < model.count; ++i)
+    std::printf("  MF %2d at (%.2f, %.2f) px\n", i + 1, model.reference_px[static_cast<std::size_t>(i)].x(),
+                model.reference_px[static_cast<std::size_t>(i)].y());
+  std::cout << "wrote " << out << "\n";
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -178,6 +269,40 @@ int main(int argc, char** argv) {
   calibrate->add_option("--square", cal_square, "Square size in metres")->required()->check(CLI::PositiveNumber);
   calibrate->add_option("--out", cal_out, "Calibration file to write (OpenCV FileStorage YAML)")->required();
 
+  std::string rig_config = "config/cell.example.yaml", rig_out, sim_scenario, replay_recording, scanner_file;
+  std::uint64_t sim_seed = 1;
+  double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
+  bool one_predictor = false, quiet = false;
+  auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
+  sim->add_option("SCENARIO", sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects")
+      ->required();
+  sim->add_option("--seed", sim_seed, "Scenario seed (noise, speed fluctuation, drops)");
+  sim->add_option("--seconds", sim_seconds, "Shorten the scenario to this many seconds")->check(CLI::PositiveNumber);
+  sim->add_option("--fps", sim_fps, "Frame rate of the generated recording (default: the scenario's, 30)")->check(CLI::PositiveNumber);
+  sim->add_option("--scanner", scanner_file, "Inspection scanner calibration (default: calibration/inspection_stereo.yaml next to the config)");
+  auto* replay = app.add_subcommand("replay", "Replay a recording through the cell in simulated time; score it when it has ground truth");
+  replay->add_option("RECORDING", replay_recording, "Recording folder (vision/RECORDING.md)")->required()->check(CLI::ExistingDirectory);
+  for (auto* c : {sim, replay}) {
+    c->add_option("--config,-c", rig_config, "Cell configuration (YAML)");
+    c->add_option("--out,-o", rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
+    c->add_option("--radius-mm", radius_mm, "A spray within this of a defect's centre marks it")->check(CLI::PositiveNumber);
+    c->add_flag("--one-predictor", one_predictor, "Replay with the configured predictor only (default: both, same frames)");
+    c->add_flag("--quiet,-q", quiet, "No progress lines");
+  }
+
+  std::string mf_image, mf_panel, mf_out, mf_scenario;
+  std::vector<std::string> mf_positions;
+  int mf_snap = 6, mf_search_x = 160, mf_search_y = 40;
+  auto* select_mfs = app.add_subcommand("select-mfs", "Choose a panel type's macro-features on a reference image of the left camera");
+  select_mfs->add_option("--image", mf_image, "Reference image of the left camera (with --from-scenario: where to write it)");
+  select_mfs->add_option("--panel", mf_panel, "Panel type name (as in the configuration's panel_types)");
+  select_mfs->add_option("--out", mf_out, "Panel type file to write")->required();
+  select_mfs->add_option("--mf", mf_positions, "Headless: an MF at X,Y pixels (repeat, in order)");
+  select_mfs->add_option("--snap", mf_snap, "Snap each MF to the strongest Shi-Tomasi corner within this many pixels")->check(CLI::Range(0, 20));
+  select_mfs->add_option("--search-x", mf_search_x, "How far (px) a new panel may sit from the reference along x")->check(CLI::Range(0, 2000));
+  select_mfs->add_option("--search-y", mf_search_y, "... and along y")->check(CLI::Range(0, 2000));
+  select_mfs->add_option("--from-scenario", mf_scenario, "Take the MFs of a rig scenario's panel model instead (no image needed)");
+
   auto* bench = app.add_subcommand("bench", "Benchmarks");
   bench->require_subcommand(1);
   LoopBenchOptions loop_options;
@@ -199,6 +324,25 @@ int main(int argc, char** argv) {
   try {
     if (*check) return check_config_command(check_file);
     if (*calibrate) return calibrate_stereo_command(cal_images, cal_board, cal_square, cal_out);
+    if (*sim || *replay) {
+      const auto config = load_or_report(rig_config);
+      if (!config) return kExitConfig;
+      rig::ReplayOptions options;
+      options.progress = !quiet;
+      options.both_predictors = !one_predictor;
+      options.radius = radius_mm / 1000.0;
+      if (*replay) return replay_command(*config, replay_recording, rig_out, options);
+      if (scanner_file.empty())
+        scanner_file = (std::filesystem::path(rig_config).parent_path() / "calibration" / "inspection_stereo.yaml").string();
+      return sim_command(*config, sim_scenario, sim_seed, sim_seconds, sim_fps, scanner_file, rig_out, options);
+    }
+    if (*select_mfs) {
+      if (mf_scenario.empty() && (mf_image.empty() || mf_panel.empty())) {
+        std::cerr << "markcell select-mfs: --image and --panel are needed (or --from-scenario)\n";
+        return kExitConfig;
+      }
+      return select_mfs_command(mf_image, mf_panel, mf_out, mf_positions, mf_scenario, mf_snap, mf_search_x, mf_search_y);
+    }
     if (*run) {
       if (clock_name == "sim" && run_seconds <= 0) {
         std::cerr << "markcell run: --clock sim needs --seconds (simulated time has no signal to stop it)\n";

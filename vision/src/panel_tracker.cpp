@@ -179,6 +179,9 @@ const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const c
   if (searching_ || !have_previous_) reinitialise();
   else track();
   have_previous_ = true;
+  estimate_.count = model_.count;
+  estimate_.reference_P = reference_P_;
+  estimate_.reference_known = known_;
   return estimate_;
 }
 

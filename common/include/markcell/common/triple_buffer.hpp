@@ -12,7 +12,11 @@ namespace markcell {
 
 template <typename T>
 class TripleBuffer {
-  static_assert(std::is_nothrow_copy_assignable_v<T>, "T is copied on the real-time path");
+  // T is copied on the real-time path: no type that owns heap memory (std::string,
+  // std::vector) may pass. Fixed-size Eigen types qualify though Eigen does not declare
+  // their copies noexcept.
+  static_assert(std::is_trivially_destructible_v<T> && std::is_copy_assignable_v<T>,
+                "T is copied on the real-time path and must not own heap memory");
 
  public:
   TripleBuffer() = default;

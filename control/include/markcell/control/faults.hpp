@@ -21,6 +21,7 @@ enum class FaultCode : std::uint8_t {
   kDeviceFault,      // a device reported a fault or went silent
   kOperatorStop,     // e-stop, line stop, PLC fault request
   kShutdown,         // SIGTERM / SIGINT: the orderly stop also goes through safe stop
+  kFrameDropped,     // a camera pair could not be used (the detail names the frame)
 };
 std::string_view to_string(FaultCode code);
 

@@ -11,6 +11,7 @@
 #include "markcell/control/faults.hpp"
 #include "markcell/control/arm_supervision.hpp"
 #include "markcell/control/plc_io.hpp"
+#include "markcell/control/marking.hpp"
 #include "markcell/control/spray_valve.hpp"
 #include "markcell/drivers/can_arm_link.hpp"
 #include "markcell/drivers/serial_arm_link.hpp"
@@ -18,6 +19,9 @@
 #include "markcell/drivers/watchdog_device.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/sd_notify.hpp"
+#include "markcell/vision/frame_source.hpp"
+#include "markcell/vision/panel_tracker.hpp"
+#include "markcell/vision/stereo_rig.hpp"
 
 namespace markcell::host {
 
@@ -25,6 +29,21 @@ namespace markcell::host {
 const std::vector<std::string>& task_catalog();
 
 enum class ClockKind { kReal, kSimulated };
+
+// What the simulated arm's nozzle did at each valve opening: the rig scores these.
+struct SimSpray {
+  Nanos time = 0;
+  drivers::ToolPose tool;  // X_Base_Tool as the arm's mechanics had it, not as reported
+};
+
+// The vision task: frames from the source, the tracker of the panel type the marking
+// sequence asked for, poses out to the control lane.
+struct VisionStats {
+  std::uint64_t frames = 0;
+  std::uint64_t dropped = 0;   // pairs the source could not deliver (each reported)
+  std::uint64_t poses = 0;
+  std::uint64_t stalls = 0;
+};
 
 class Cell {
  public:
@@ -51,6 +70,15 @@ class Cell {
   control::ArmSupervision& arm_supervision() { return *arm_supervision_; }
   // The simulated arm (null unless devices.arm.transport is simulated).
   drivers::SimCanArm* sim_arm() { return sim_world_ ? sim_world_->arm.get() : nullptr; }
+  // Valve openings seen by the simulated world (simulated arm only), oldest first.
+  std::size_t sim_spray_count() const { return sim_world_ ? std::min(sim_world_->spray_count, sim_world_->sprays.size()) : 0; }
+  const SimSpray& sim_spray(std::size_t i) const { return sim_world_->sprays[i]; }
+  // The marking sequence and the vision task (null when not in the task table).
+  control::MarkingSequence* marking() { return marking_.get(); }
+  vision::FrameSource* frame_source() { return frame_source_.get(); }
+  const VisionStats* vision_stats() const { return vision_ ? &vision_->stats : nullptr; }
+  const vision::StereoRig* stereo_rig() const { return rig_.get(); }
+  const Eigen::Isometry3d& X_Base_CamR() const { return X_Base_CamR_; }
   // One line per privilege the real clock could not get (empty when all were granted).
   std::vector<std::string> privilege_warnings() const;
 
@@ -68,8 +96,32 @@ class Cell {
   struct SimWorld {
     drivers::SimCanWire wire;
     std::unique_ptr<drivers::SimCanArm> arm;
+    control::SprayValve* valve = nullptr;
+    bool valve_was_open = false;
+    std::array<SimSpray, 256> sprays{};
+    std::size_t spray_count = 0;
     static control::TaskResult task(control::TaskContext& ctx, void* self);
   };
+  struct VisionTask {
+    vision::FrameSource* source = nullptr;
+    std::vector<std::unique_ptr<vision::PanelTracker>> trackers;  // one per panel type
+    TripleBuffer<vision::PoseEstimate>* estimates = nullptr;
+    TripleBuffer<control::TrackerRequest>* requests = nullptr;
+    control::FaultLog* faults = nullptr;
+    int active = 0;
+    std::uint32_t reset_seen = 0;
+    std::uint32_t hint_seen = 0;
+    VisionStats stats;
+    static control::TaskResult task(control::TaskContext& ctx, void* self);
+  };
+  std::unique_ptr<vision::StereoRig> rig_;
+  Eigen::Isometry3d X_Base_CamR_ = Eigen::Isometry3d::Identity();
+  std::vector<vision::PanelTypeModel> panel_models_;
+  std::unique_ptr<vision::FrameSource> frame_source_;
+  std::unique_ptr<TripleBuffer<vision::PoseEstimate>> estimates_;
+  std::unique_ptr<TripleBuffer<control::TrackerRequest>> tracker_requests_;
+  std::unique_ptr<VisionTask> vision_;
+  std::unique_ptr<control::MarkingSequence> marking_;
   std::unique_ptr<SimWorld> sim_world_;
   std::unique_ptr<drivers::SocketCanBus> can_bus_;
   std::unique_ptr<drivers::ArmLink> arm_link_;

@@ -107,6 +107,8 @@ struct CameraConfig {
   double exposure_us = 4000.0;
   double gain_db = 0.0;
   CameraTrigger trigger = CameraTrigger::kHardware;
+  Nanos latency = millis(15);  // exposure to frame in memory (transfer); replayed frames arrive this late
+  std::string recording;       // source: recording; absolute
 };
 
 struct WatchdogConfig {
@@ -128,6 +130,39 @@ struct SafeStopConfig {
 struct PanelTypeConfig {
   std::string name;
   int macro_features = 10;
+  std::string file;  // the panel type's MFs and templates (markcell select-mfs); absolute
+};
+
+// The vision task's tracker (vision::TrackerParams), as configured.
+struct VisionConfig {
+  double epipolar_px = 1.0;
+  double min_ncc = 0.75;
+  int lk_window_px = 21;
+  int pyramid_levels = 3;
+  int min_macro_features = 4;
+  double inlier_mm = 8.0;
+  double depth_min_m = 2.0, depth_max_m = 4.5;
+  double forward_backward_px = 0.5;
+  int lost_frames_to_reinit = 15;
+};
+
+// The marking sequence (control::MarkingParams), as configured.
+struct MarkingConfig {
+  double standoff_m = 0.20;
+  Nanos command_lead = millis(10);
+  double settle_mm = 1.5;
+  double settle_deg = 0.6;
+  Nanos settle = millis(40);
+  Nanos max_prediction_age = millis(400);
+  Nanos defect_timeout = seconds(6);
+  Nanos acquire_timeout = seconds(10);
+  Nanos home_timeout = seconds(10);
+  std::string predictor = "kalman";  // kalman | two-frame
+  double intercalibration_limit_mm = 20.0;
+  std::array<double, 3> line_direction{1.0, 0.0, 0.0};  // CamR
+  double accel_sigma = 0.005;
+  double lateral_sigma_mm = 0.4;
+  double depth_sigma_mm = 2.0;
 };
 
 struct CalibrationPaths {
@@ -147,6 +182,8 @@ struct CellConfig {
   CameraConfig cameras;
   CalibrationPaths calibration;
   std::vector<PanelTypeConfig> panel_types;
+  VisionConfig vision;
+  MarkingConfig marking;
 };
 
 // Validates and loads; throws ConfigInvalid with every error found. `known_tasks`: the

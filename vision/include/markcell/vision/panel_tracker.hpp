@@ -95,6 +95,12 @@ struct PoseEstimate {
   int inliers = 0;                  // MFs used for the pose
   double rms = 0;                   // residual of the rigid fit, metres
   std::array<MacroFeatureObservation, kMaxMacroFeatures> mfs{};
+  // The MFs' positions in P (where known): what the inter-calibration pairs with the
+  // inspection record. Copied with every estimate so that a reader across lanes never
+  // needs the tracker itself.
+  std::array<Eigen::Vector3d, kMaxMacroFeatures> reference_P{};
+  std::array<bool, kMaxMacroFeatures> reference_known{};
+  int count = 0;                    // MFs of the panel type
   bool has_pose() const { return status == TrackStatus::kTracking || status == TrackStatus::kReinitialised; }
 };
 

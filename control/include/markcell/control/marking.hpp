@@ -1,0 +1,194 @@
+#pragma once
+// The marking sequence (paper Fig. 9) as the `marking` task of the control lane:
+//
+//   idle -> (PLC panel present, cycle enabled, an inspection record) -> acquire: the
+//   vision task re-initialises the panel's MFs; the inter-calibration pairs them with the
+//   record (X_P_SL, Table I metrics; above the limit: no marking, PLC fault) and each
+//   defect gets its tool pose -> for each defect, downstream first: approach (the arm
+//   follows the nozzle pose predicted for the time the set-point takes effect), settle
+//   (within tolerance for the settle time, on a fresh prediction), spray (one valve
+//   pulse) -> home -> PLC done (or fault) -> wait for the panel to leave -> idle.
+//
+// Every defect ends marked or skipped with a reason; every panel ends with a result.
+// Fixed storage; step() is bounded and allocates nothing.
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <string_view>
+
+#include <Eigen/Geometry>
+
+#include "markcell/common/fixed_string.hpp"
+#include "markcell/common/triple_buffer.hpp"
+#include "markcell/control/executive.hpp"
+#include "markcell/control/intercalibration.hpp"
+#include "markcell/control/plc_io.hpp"
+#include "markcell/control/predictor.hpp"
+#include "markcell/control/spray_valve.hpp"
+#include "markcell/control/tool_pose.hpp"
+#include "markcell/drivers/arm.hpp"
+#include "markcell/vision/panel_tracker.hpp"
+
+namespace markcell::control {
+
+inline constexpr int kMaxDefects = 16;
+inline constexpr int kMaxDefectPoints = 256;
+
+// An inspection record, validated, in fixed storage (what the record reader hands over).
+struct PanelJob {
+  FixedString<63> panel_id;
+  FixedString<31> panel_type;
+  int panel_type_index = 0;  // in the configuration's panel_types: which tracker
+  int mf_count = 0;
+  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> mfs_SL{};
+  struct Defect {
+    int id = 0;
+    int count = 0;
+    std::array<Eigen::Vector3d, kMaxDefectPoints> points_SL{};
+  };
+  int defect_count = 0;
+  std::array<Defect, kMaxDefects> defects{};
+};
+
+enum class SkipReason : std::uint8_t {
+  kNone,
+  kIntercalibration,  // the panel's inter-calibration failed or exceeded its limit
+  kToolPose,          // degenerate point cluster
+  kOutOfReach,        // the spraying pose never came within the arm's reach
+  kNotSettled,        // the arm did not settle on the moving target in time
+  kNoPrediction,      // the panel was not tracked (lost, occluded) when it was needed
+  kNotFound,          // the panel's MFs were not found
+  kStopped,           // safe stop, e-stop or the panel left before its turn
+};
+std::string_view to_string(SkipReason r);
+
+struct DefectResult {
+  int id = 0;
+  bool sprayed = false;
+  SkipReason skipped = SkipReason::kNone;
+  ToolPoseStatus tool = ToolPoseStatus::kOk;
+  Nanos approach_start = -1;
+  Nanos spray_requested = -1;
+  // What the controller believed at the spray: the defect's centre in CamR there and then.
+  Eigen::Vector3d predicted_centre_CamR = Eigen::Vector3d::Zero();
+  Eigen::Isometry3d X_Base_Nozzle = Eigen::Isometry3d::Identity();  // last set-point
+};
+
+struct PanelResult {
+  std::uint64_t serial = 0;  // panels handled since start
+  FixedString<63> panel_id;
+  bool fault = false;
+  FixedString<119> reason;  // when fault
+  Intercalibration intercalibration;
+  int defect_count = 0;
+  std::array<DefectResult, kMaxDefects> defects{};
+  Nanos started = 0, finished = 0;
+};
+
+struct MarkingParams {
+  Eigen::Isometry3d X_Base_CamR = Eigen::Isometry3d::Identity();
+  double standoff = 0.20;            // m, nozzle to surface (paper: 20 cm pre-contact)
+  double reach = 1.6;                // m, from the base origin
+  Nanos command_lead = millis(10);   // set-points are for now + lead (link and arm latency)
+  double settle_position = 0.0015;   // m
+  double settle_angle = 0.01;        // rad
+  Nanos settle_time = millis(40);
+  Nanos max_prediction_age = millis(400);  // newest pose older than this: wait, do not spray
+  Nanos pulse = millis(80);
+  Nanos defect_timeout = seconds(6);
+  Nanos acquire_timeout = seconds(10);
+  Nanos home_timeout = seconds(10);
+  Eigen::Vector3d line_direction_CamR = Eigen::Vector3d::UnitX();  // downstream defects go first
+  IntercalibrationLimits intercalibration;
+  PredictorParams predictor;
+  int min_defect_points = 6;
+};
+
+enum class MarkingState : std::uint8_t { kIdle, kAcquire, kApproach, kSpraying, kHome, kWaitRelease };
+std::string_view to_string(MarkingState s);
+
+// Fig. 8 of the paper: at each new pose, where the predictor had put the current defect
+// at that frame's time, and where the pose puts it.
+struct PredictionSample {
+  Nanos time = 0;
+  int defect = 0;
+  Eigen::Vector3d estimated_CamR = Eigen::Vector3d::Zero();
+  Eigen::Vector3d predicted_CamR = Eigen::Vector3d::Zero();
+};
+
+// Control lane -> vision lane: start a new panel, and MF positions the tracker did not
+// find itself (from the inspection record through the inter-calibration).
+struct TrackerRequest {
+  std::uint32_t reset_serial = 0;      // a change asks for a new search
+  int panel_type = 0;                  // of this panel type
+  std::uint32_t reference_serial = 0;  // the tracker's P these positions belong to
+  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> reference_P{};
+  std::array<bool, vision::kMaxMacroFeatures> known{};
+};
+
+class MarkingSequence {
+ public:
+  static constexpr std::size_t kPredictionLog = 1 << 13;
+  MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve, drivers::GpioLines& lines,
+                  const PlcLineMap& plc, const PlcIo& plc_io, TripleBuffer<vision::PoseEstimate>& estimates,
+                  TripleBuffer<TrackerRequest>& tracker_requests);
+
+  // From the record reader (another thread): one record waits; false when one already does.
+  bool offer_job(const PanelJob& job);
+  TaskResult step(const TaskContext& ctx) noexcept;
+  static TaskResult task(TaskContext& ctx, void* self) { return static_cast<MarkingSequence*>(self)->step(ctx); }
+
+  MarkingState state() const { return state_; }
+  // Completed panels, newest last (wait-free for a reader on another lane).
+  TripleBuffer<PanelResult>& results() { return results_; }
+  std::uint64_t panels_completed() const { return completed_.load(std::memory_order_acquire); }
+  // Read after the run (simulated cells, tests).
+  const PanelResult& current() const { return result_; }
+  std::size_t prediction_samples() const { return std::min(prediction_count_, kPredictionLog); }
+  const PredictionSample& prediction_sample(std::size_t i) const { return prediction_log_[i]; }
+
+ private:
+  void on_estimate(const vision::PoseEstimate& e, Nanos now);
+  void start_panel(Nanos now);
+  void intercalibrate_panel(const vision::PoseEstimate& e);
+  void next_defect(Nanos now);
+  void approach(Nanos now, const TaskContext& ctx);
+  void finish_panel(Nanos now);
+  void fail_panel(Nanos now, std::string_view reason, SkipReason skip);
+  void set_plc(int line, bool value);
+  Eigen::Isometry3d nozzle_in_base(const Eigen::Isometry3d& X_CamR_P, int defect) const;
+
+  const MarkingParams params_;
+  drivers::ArmLink& arm_;
+  SprayValve& valve_;
+  drivers::GpioLines& lines_;
+  const PlcLineMap plc_;
+  const PlcIo& plc_io_;
+  TripleBuffer<vision::PoseEstimate>& estimates_;
+  TripleBuffer<TrackerRequest>& tracker_requests_;
+  PosePredictor predictor_;
+
+  std::atomic<bool> job_waiting_{false};
+  PanelJob mailbox_;
+  PanelJob job_;
+  MarkingState state_ = MarkingState::kIdle;
+  PanelResult result_;
+  TripleBuffer<PanelResult> results_;
+  std::atomic<std::uint64_t> completed_{0};
+  std::uint32_t reset_serial_ = 0;
+  std::uint32_t serial_at_reset_ = 0;   // tracker serial when the search was asked for
+  std::uint32_t latest_serial_ = 0;
+  std::uint32_t intercal_serial_ = 0;   // the P the panel's tool poses are in (0: none yet)
+  std::array<DefectToolPose, kMaxDefects> tools_{};
+  std::array<int, kMaxDefects> order_{};
+  int next_ = 0;                        // position in order_
+  int defect_ = -1;                     // the defect being marked (index into job_)
+  Nanos deadline_ = 0;
+  Nanos settled_since_ = -1;
+  bool home_sent_ = false;
+  Nanos home_sent_at_ = 0;
+  std::array<PredictionSample, kPredictionLog> prediction_log_{};
+  std::size_t prediction_count_ = 0;
+};
+
+}  // namespace markcell::control

@@ -1,0 +1,322 @@
+#include "markcell/control/marking.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace markcell::control {
+
+std::string_view to_string(SkipReason r) {
+  switch (r) {
+    case SkipReason::kNone: return "";
+    case SkipReason::kIntercalibration: return "inter-calibration failed or above its limit";
+    case SkipReason::kToolPose: return "no tool pose for the defect's points";
+    case SkipReason::kOutOfReach: return "spraying pose out of the arm's reach";
+    case SkipReason::kNotSettled: return "arm did not settle on the moving target in time";
+    case SkipReason::kNoPrediction: return "panel not tracked when the defect's turn came";
+    case SkipReason::kNotFound: return "panel's macro-features not found";
+    case SkipReason::kStopped: return "stopped before the defect's turn (safe stop or panel left)";
+  }
+  return "?";
+}
+
+std::string_view to_string(MarkingState s) {
+  switch (s) {
+    case MarkingState::kIdle: return "idle";
+    case MarkingState::kAcquire: return "acquire";
+    case MarkingState::kApproach: return "approach";
+    case MarkingState::kSpraying: return "spraying";
+    case MarkingState::kHome: return "home";
+    case MarkingState::kWaitRelease: return "wait-release";
+  }
+  return "?";
+}
+
+namespace {
+drivers::ToolPose to_tool_pose(const Eigen::Isometry3d& X) {
+  drivers::ToolPose p;
+  const Eigen::AngleAxisd aa(X.linear());
+  const Eigen::Vector3d r = aa.axis() * aa.angle();
+  for (int i = 0; i < 3; ++i) {
+    p.position[static_cast<std::size_t>(i)] = X.translation()(i);
+    p.rotation[static_cast<std::size_t>(i)] = r(i);
+  }
+  return p;
+}
+Eigen::Matrix3d rotation_of(const drivers::ToolPose& p) {
+  const Eigen::Vector3d r(p.rotation[0], p.rotation[1], p.rotation[2]);
+  const double angle = r.norm();
+  return angle < 1e-15 ? Eigen::Matrix3d::Identity() : Eigen::AngleAxisd(angle, r / angle).toRotationMatrix();
+}
+}  // namespace
+
+MarkingSequence::MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve,
+                                 drivers::GpioLines& lines, const PlcLineMap& plc, const PlcIo& plc_io,
+                                 TripleBuffer<vision::PoseEstimate>& estimates,
+                                 TripleBuffer<TrackerRequest>& tracker_requests)
+    : params_(params),
+      arm_(arm),
+      valve_(valve),
+      lines_(lines),
+      plc_(plc),
+      plc_io_(plc_io),
+      estimates_(estimates),
+      tracker_requests_(tracker_requests),
+      predictor_(params.predictor) {}
+
+bool MarkingSequence::offer_job(const PanelJob& job) {
+  if (job_waiting_.load(std::memory_order_acquire)) return false;
+  mailbox_ = job;
+  job_waiting_.store(true, std::memory_order_release);
+  return true;
+}
+
+void MarkingSequence::set_plc(int line, bool value) {
+  if (line >= 0) (void)lines_.set(line, value);
+}
+
+Eigen::Isometry3d MarkingSequence::nozzle_in_base(const Eigen::Isometry3d& X_CamR_P, int defect) const {
+  return params_.X_Base_CamR * X_CamR_P * tools_[static_cast<std::size_t>(defect)].X_P_Nozzle;
+}
+
+TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
+  const Nanos now = ctx.now();
+  if (estimates_.update()) on_estimate(estimates_.read(), now);
+  if (ctx.safe_stopped()) {
+    // The safe stop has closed the valve and held the arm; the panel ends here.
+    if (state_ != MarkingState::kIdle && state_ != MarkingState::kWaitRelease)
+      fail_panel(now, "safe stop during the marking sequence", SkipReason::kStopped);
+    return TaskResult::kOk;
+  }
+  const PlcInputs& plc = plc_io_.inputs();
+  switch (state_) {
+    case MarkingState::kIdle:
+      if (plc.panel_present && plc.cycle_enable && job_waiting_.load(std::memory_order_acquire)) start_panel(now);
+      break;
+    case MarkingState::kAcquire:
+      if (!plc.panel_present) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
+      else if (now > deadline_) fail_panel(now, "macro-features not found in time", SkipReason::kNotFound);
+      break;
+    case MarkingState::kApproach:
+      if (!plc.panel_present) fail_panel(now, "panel left during the marking sequence", SkipReason::kStopped);
+      else approach(now, ctx);
+      break;
+    case MarkingState::kSpraying: {
+      const std::size_t n = valve_.pulse_count();
+      if (!valve_.open() && n > 0 && valve_.pulse(n - 1).closed >= 0 &&
+          valve_.pulse(n - 1).requested_start == result_.defects[static_cast<std::size_t>(defect_)].spray_requested) {
+        result_.defects[static_cast<std::size_t>(defect_)].sprayed = true;
+        next_defect(now);
+      }
+      break;
+    }
+    case MarkingState::kHome: {
+      if (!home_sent_) {
+        drivers::ArmCommand home;
+        home.mode = drivers::ArmMode::kHome;
+        home.time = now;
+        arm_.send(home, now);
+        home_sent_ = true;
+        home_sent_at_ = now;
+        deadline_ = now + params_.home_timeout;
+      }
+      // Homed, in a state the arm sent after it received the command.
+      const auto& s = arm_.state();
+      if ((s.flags & drivers::kHomed) != 0 && s.received > home_sent_at_ + params_.command_lead) finish_panel(now);
+      else if (now > deadline_) {
+        result_.fault = true;
+        result_.reason.assign("arm did not reach home in time");
+        finish_panel(now);
+      }
+      break;
+    }
+    case MarkingState::kWaitRelease:
+      if (!plc.panel_present) {
+        set_plc(plc_.done, false);
+        state_ = MarkingState::kIdle;
+      }
+      break;
+  }
+  return TaskResult::kOk;
+}
+
+void MarkingSequence::start_panel(Nanos now) {
+  job_ = mailbox_;
+  job_waiting_.store(false, std::memory_order_release);
+  result_ = PanelResult{};
+  result_.serial = completed_.load(std::memory_order_relaxed) + 1;
+  result_.panel_id = job_.panel_id.view();
+  result_.started = now;
+  result_.defect_count = job_.defect_count;
+  for (int i = 0; i < job_.defect_count; ++i) result_.defects[static_cast<std::size_t>(i)].id = job_.defects[static_cast<std::size_t>(i)].id;
+  set_plc(plc_.done, false);
+  set_plc(plc_.busy, true);
+  // Ask the vision lane for a fresh search; poses of the previous P no longer count.
+  TrackerRequest& req = tracker_requests_.write_slot();
+  req = TrackerRequest{};
+  req.reset_serial = ++reset_serial_;
+  req.panel_type = job_.panel_type_index;
+  tracker_requests_.publish();
+  serial_at_reset_ = latest_serial_;
+  intercal_serial_ = 0;
+  prediction_count_ = 0;
+  defect_ = -1;
+  next_ = 0;
+  home_sent_ = false;
+  deadline_ = now + params_.acquire_timeout;
+  state_ = MarkingState::kAcquire;
+}
+
+void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
+  latest_serial_ = std::max(latest_serial_, e.reference_serial);
+  if (state_ != MarkingState::kAcquire && state_ != MarkingState::kApproach && state_ != MarkingState::kSpraying) return;
+  if (e.reference_serial <= serial_at_reset_ || !e.has_pose()) return;
+  if (e.reference_serial != intercal_serial_) {
+    // A new P (the first search, or a re-search after the panel was lost): pair its MFs
+    // with the record again; the tool poses live in P.
+    intercalibrate_panel(e);
+    if (state_ != MarkingState::kAcquire && state_ != MarkingState::kApproach && state_ != MarkingState::kSpraying) return;
+  }
+  if (defect_ >= 0) {
+    PredictionSample& s = prediction_log_[prediction_count_ % kPredictionLog];
+    const Eigen::Vector3d c = tools_[static_cast<std::size_t>(defect_)].centre;
+    s.time = e.time;
+    s.defect = job_.defects[static_cast<std::size_t>(defect_)].id;
+    s.estimated_CamR = e.X_CamR_P * c;
+    s.predicted_CamR = predictor_.ready() ? Eigen::Vector3d(predictor_.predict(e.time) * c) : s.estimated_CamR;
+    ++prediction_count_;
+  }
+  predictor_.update(e.time, e.X_CamR_P);
+  if (state_ == MarkingState::kAcquire && predictor_.ready()) next_defect(now);
+}
+
+void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
+  const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
+  result_.intercalibration = intercalibrate(std::span(job_.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
+                                            std::span(e.reference_known.data(), n), params_.intercalibration);
+  intercal_serial_ = e.reference_serial;
+  const Intercalibration& ic = result_.intercalibration;
+  if (!ic.ok()) {
+    fail_panel(e.time, to_string(ic.status), SkipReason::kIntercalibration);
+    return;
+  }
+  // Tool poses in P, and the defects' order: downstream first.
+  std::array<Eigen::Vector3d, kMaxDefectPoints> pts{};
+  std::array<double, kMaxDefects> key{};
+  for (int i = 0; i < job_.defect_count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    const auto& d = job_.defects[k];
+    for (int j = 0; j < d.count; ++j) pts[static_cast<std::size_t>(j)] = ic.X_P_SL * d.points_SL[static_cast<std::size_t>(j)];
+    tools_[k] = tool_pose(std::span(pts.data(), static_cast<std::size_t>(d.count)), params_.standoff, Eigen::Vector3d::Zero(),
+                          params_.min_defect_points);
+    result_.defects[k].tool = tools_[k].status;
+    key[k] = tools_[k].centre.dot(params_.line_direction_CamR);
+    order_[k] = i;
+  }
+  std::sort(order_.begin(), order_.begin() + job_.defect_count,
+            [&](int a, int b) { return key[static_cast<std::size_t>(a)] > key[static_cast<std::size_t>(b)]; });
+  // MFs the tracker did not find, placed through the record, so it picks them up.
+  TrackerRequest& req = tracker_requests_.write_slot();
+  req.reset_serial = reset_serial_;
+  req.panel_type = job_.panel_type_index;
+  req.reference_serial = e.reference_serial;
+  for (std::size_t i = 0; i < n; ++i) {
+    req.known[i] = !e.reference_known[i];
+    req.reference_P[i] = ic.X_P_SL * job_.mfs_SL[i];
+  }
+  tracker_requests_.publish();
+  // The anchor the predictors follow: the centroid of the MFs found.
+  Eigen::Vector3d anchor = Eigen::Vector3d::Zero();
+  int count = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    if (e.reference_known[i]) anchor += e.reference_P[i], ++count;
+  predictor_.reset(anchor / std::max(count, 1));
+  if (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying) settled_since_ = -1;
+}
+
+void MarkingSequence::next_defect(Nanos now) {
+  while (next_ < job_.defect_count) {
+    defect_ = order_[static_cast<std::size_t>(next_++)];
+    auto& r = result_.defects[static_cast<std::size_t>(defect_)];
+    if (!tools_[static_cast<std::size_t>(defect_)].ok()) {
+      r.skipped = SkipReason::kToolPose;
+      continue;
+    }
+    r.approach_start = now;
+    deadline_ = now + params_.defect_timeout;
+    settled_since_ = -1;
+    state_ = MarkingState::kApproach;
+    return;
+  }
+  defect_ = -1;
+  state_ = MarkingState::kHome;
+}
+
+void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
+  auto& r = result_.defects[static_cast<std::size_t>(defect_)];
+  const bool fresh = predictor_.ready() && now - predictor_.last_update() <= params_.max_prediction_age;
+  if (now > deadline_) {
+    const Eigen::Isometry3d X = nozzle_in_base(predictor_.predict(now), defect_);
+    r.skipped = !fresh ? SkipReason::kNoPrediction
+                       : X.translation().norm() > params_.reach ? SkipReason::kOutOfReach : SkipReason::kNotSettled;
+    next_defect(now);
+    return;
+  }
+  if (!predictor_.ready()) return;
+  const Nanos t_cmd = now + params_.command_lead;
+  const Eigen::Isometry3d target = nozzle_in_base(predictor_.predict(t_cmd), defect_);
+  if (target.translation().norm() > params_.reach) {
+    settled_since_ = -1;
+    return;  // not (yet) reachable: wait, the line may bring it in
+  }
+  drivers::ArmCommand move;
+  move.mode = drivers::ArmMode::kMove;
+  move.time = t_cmd;
+  move.target = to_tool_pose(target);
+  arm_.send(move, now);
+  r.X_Base_Nozzle = target;
+  // Settled: where the arm reports itself against where the nozzle should have been then.
+  const drivers::ArmState& s = arm_.state();
+  const Eigen::Isometry3d then = nozzle_in_base(predictor_.predict(s.received), defect_);
+  const Eigen::Vector3d pos(s.tool.position[0], s.tool.position[1], s.tool.position[2]);
+  const double angle = Eigen::AngleAxisd(rotation_of(s.tool).transpose() * then.linear()).angle();
+  const bool within = (pos - then.translation()).norm() <= params_.settle_position && angle <= params_.settle_angle;
+  // (The arm's state carries no mode over CAN: position, orientation and freshness decide.)
+  if (!within || !fresh || s.received < r.approach_start) {
+    settled_since_ = -1;
+    return;
+  }
+  if (settled_since_ < 0) settled_since_ = now;
+  if (now - settled_since_ < params_.settle_time) return;
+  const Nanos start = now + 1;  // the valve task opens it on its next run
+  if (valve_.request(start, params_.pulse, ctx.safe_stopped()) != PulseRequest::kAccepted) return;
+  r.spray_requested = start;
+  r.predicted_centre_CamR = predictor_.predict(start) * tools_[static_cast<std::size_t>(defect_)].centre;
+  state_ = MarkingState::kSpraying;
+}
+
+void MarkingSequence::fail_panel(Nanos now, std::string_view reason, SkipReason skip) {
+  result_.fault = true;
+  result_.reason = reason;
+  for (int i = 0; i < job_.defect_count; ++i) {
+    auto& d = result_.defects[static_cast<std::size_t>(i)];
+    if (!d.sprayed && d.skipped == SkipReason::kNone) d.skipped = skip;
+  }
+  defect_ = -1;
+  next_ = job_.defect_count;
+  if (state_ == MarkingState::kIdle || state_ == MarkingState::kWaitRelease) return;
+  state_ = MarkingState::kHome;
+  home_sent_ = false;
+  deadline_ = now + params_.home_timeout;
+}
+
+void MarkingSequence::finish_panel(Nanos now) {
+  result_.finished = now;
+  set_plc(plc_.busy, false);
+  if (result_.fault) set_plc(plc_.fault, true);
+  else set_plc(plc_.done, true);
+  results_.write(result_);
+  completed_.fetch_add(1, std::memory_order_acq_rel);
+  state_ = MarkingState::kWaitRelease;
+}
+
+}  // namespace markcell::control

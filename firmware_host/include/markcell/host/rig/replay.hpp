@@ -1,0 +1,72 @@
+#pragma once
+// The rig's runs: a recording replayed through the cell in simulated time (the same
+// executable, configuration and tasks as the live cell; the arm, valve and PLC on their
+// simulated twins), scored against the recording's ground truth, and reported.
+//
+//   markcell replay RECORDING --out DIR    an existing recording
+//   markcell sim SCENARIO --out DIR        a scenario generated into DIR/recording, then replayed
+//
+// Each run replays the recording once per predictor (the configured one first, then the
+// other), so both are reported from the same frames.
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "markcell/control/marking.hpp"
+#include "markcell/host/cell.hpp"
+#include "markcell/host/config.hpp"
+#include "markcell/host/rig/scoring.hpp"
+
+namespace markcell::host::rig {
+
+struct ReplayOptions {
+  std::string out_dir;
+  bool progress = false;            // a progress line on stderr while it runs
+  bool both_predictors = true;      // also replay with the predictor not configured
+  Nanos tail = seconds(15);         // simulated time after the last frame for the panel to finish
+  double radius = 0.010;            // a spray within this of a defect's centre marks it, m
+};
+
+struct TimedPoint {
+  Nanos time = 0;
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();
+};
+
+struct PredictorRun {
+  std::string predictor;
+  Score score;
+  control::PanelResult panel;
+  bool scored = false;                          // the recording has ground truth
+  std::optional<Eigen::Vector3d> prediction_max_abs;  // at the sprays, CamR axes, m
+  Eigen::Vector3d one_frame_max_abs = Eigen::Vector3d::Zero();  // estimated vs one-frame-ahead prediction, m
+  double pose_error_max = 0, pose_error_rms = 0;  // the marked defect's tracked position vs truth, m
+  int pose_samples = 0;
+  double seconds_per_defect = 0;
+  std::uint64_t deadline_misses = 0, overruns = 0;
+  VisionStats vision;
+  std::uint64_t frames_skipped = 0;
+  std::string timing_report;
+  std::vector<std::string> faults;
+  std::vector<control::PredictionSample> samples;
+  std::vector<TimedPoint> truth_samples;        // the same defect's true position at each sample
+};
+
+struct ReplayReport {
+  std::string scenario;
+  std::string recording;
+  std::string panel_type;
+  std::vector<PredictorRun> runs;               // runs[0]: the configured predictor
+};
+
+// Throws (naming the file and what is wrong) when the recording or the configuration
+// cannot be used.
+ReplayReport replay_recording(const CellConfig& config, const std::string& recording, const ReplayOptions& options);
+
+// DIR/report.json and the plots; returns the files written.
+std::vector<std::string> write_report(const ReplayReport& report, const CellConfig& config, const std::string& out_dir);
+// The marking table (with the paper's figures beside), the timing table and the paths.
+std::string report_table(const ReplayReport& report, const std::vector<std::string>& files);
+
+}  // namespace markcell::host::rig

@@ -1,0 +1,115 @@
+#include "markcell/host/inspection_record.hpp"
+
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include <yaml-cpp/yaml.h>
+
+namespace markcell::host {
+
+namespace {
+[[noreturn]] void fail(const std::string& path, const YAML::Node& at, const std::string& field, const std::string& what) {
+  std::ostringstream os;
+  os << path;
+  if (at.IsDefined() && at.Mark().line >= 0) os << ":" << at.Mark().line + 1 << ":" << at.Mark().column + 1;
+  os << ": " << field << ": " << what;
+  throw RecordInvalid(os.str());
+}
+
+Eigen::Vector3d point(const std::string& path, const YAML::Node& n, const std::string& field) {
+  if (!n.IsSequence() || n.size() != 3) fail(path, n, field, "expected [x, y, z] in metres");
+  Eigen::Vector3d p;
+  for (std::size_t i = 0; i < 3; ++i) {
+    try {
+      p(static_cast<Eigen::Index>(i)) = n[i].as<double>();
+    } catch (const YAML::Exception&) {
+      fail(path, n[i], field, "'" + (n[i].IsScalar() ? n[i].Scalar() : std::string("?")) + "' is not a number");
+    }
+    if (!std::isfinite(p(static_cast<Eigen::Index>(i)))) fail(path, n[i], field, "not a finite number");
+  }
+  // The scanner sees the panel within a few metres: anything else is a unit mistake (mm).
+  if (p.norm() > 20.0) fail(path, n, field, "point " + std::to_string(p.norm()) + " m from the scanner: units must be metres");
+  return p;
+}
+
+std::string scalar(const std::string& path, const YAML::Node& root, const std::string& key) {
+  const YAML::Node n = root[key];
+  if (!n.IsDefined()) fail(path, root, key, "missing");
+  if (!n.IsScalar() || n.Scalar().empty()) fail(path, n, key, "expected a non-empty text");
+  return n.Scalar();
+}
+}  // namespace
+
+control::PanelJob parse_inspection_record(const std::string& text, const std::string& path,
+                                          const std::vector<PanelTypeConfig>& panel_types) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw RecordInvalid(path + ":" + std::to_string(e.mark.line + 1) + ": YAML: " + e.msg);
+  }
+  if (!root.IsMap()) fail(path, root, "(document)", "expected a map");
+  control::PanelJob job;
+  const std::string id = scalar(path, root, "panel_id");
+  if (id.size() > 63) fail(path, root["panel_id"], "panel_id", "longer than 63 characters");
+  job.panel_id.assign(id);
+  const std::string type = scalar(path, root, "panel_type");
+  const PanelTypeConfig* panel = nullptr;
+  for (std::size_t i = 0; i < panel_types.size(); ++i)
+    if (panel_types[i].name == type) {
+      panel = &panel_types[i];
+      job.panel_type_index = static_cast<int>(i);
+    }
+  if (panel == nullptr) fail(path, root["panel_type"], "panel_type", "'" + type + "' is not configured in panel_types");
+  job.panel_type.assign(type);
+  if (scalar(path, root, "frame") != "CamL_SL") fail(path, root["frame"], "frame", "must be CamL_SL (the scanner's left camera)");
+  if (scalar(path, root, "units") != "m") fail(path, root["units"], "units", "must be m");
+  const YAML::Node mfs = root["macro_features"];
+  if (!mfs.IsSequence()) fail(path, mfs.IsDefined() ? mfs : root, "macro_features", "expected a list of [x, y, z]");
+  if (static_cast<int>(mfs.size()) != panel->macro_features)
+    fail(path, mfs, "macro_features",
+         std::to_string(mfs.size()) + " given, panel type '" + type + "' has " + std::to_string(panel->macro_features));
+  job.mf_count = static_cast<int>(mfs.size());
+  for (std::size_t i = 0; i < mfs.size(); ++i)
+    job.mfs_SL[i] = point(path, mfs[i], "macro_features[" + std::to_string(i) + "]");
+  const YAML::Node defects = root["defects"];
+  if (!defects.IsSequence()) fail(path, defects.IsDefined() ? defects : root, "defects", "expected a list (may be empty)");
+  if (defects.size() > static_cast<std::size_t>(control::kMaxDefects))
+    fail(path, defects, "defects", std::to_string(defects.size()) + " defects, at most " + std::to_string(control::kMaxDefects));
+  std::set<int> ids;
+  for (std::size_t i = 0; i < defects.size(); ++i) {
+    const std::string F = "defects[" + std::to_string(i) + "]";
+    const YAML::Node d = defects[i];
+    if (!d.IsMap()) fail(path, d, F, "expected a map with id and points");
+    int did = 0;
+    try {
+      did = d["id"].as<int>();
+    } catch (const YAML::Exception&) {
+      fail(path, d["id"].IsDefined() ? d["id"] : d, F + ".id", "missing or not an integer");
+    }
+    if (did <= 0) fail(path, d["id"], F + ".id", "must be a positive integer");
+    if (!ids.insert(did).second) fail(path, d["id"], F + ".id", "duplicate defect id " + std::to_string(did));
+    const YAML::Node pts = d["points"];
+    if (!pts.IsSequence() || pts.size() == 0) fail(path, pts.IsDefined() ? pts : d, F + ".points", "expected a non-empty list of [x, y, z]");
+    if (pts.size() > static_cast<std::size_t>(control::kMaxDefectPoints))
+      fail(path, pts, F + ".points", std::to_string(pts.size()) + " points, at most " + std::to_string(control::kMaxDefectPoints));
+    auto& out = job.defects[i];
+    out.id = did;
+    out.count = static_cast<int>(pts.size());
+    for (std::size_t j = 0; j < pts.size(); ++j) out.points_SL[j] = point(path, pts[j], F + ".points[" + std::to_string(j) + "]");
+  }
+  job.defect_count = static_cast<int>(defects.size());
+  return job;
+}
+
+control::PanelJob read_inspection_record(const std::string& path, const std::vector<PanelTypeConfig>& panel_types) {
+  std::ifstream in(path);
+  if (!in) throw RecordInvalid(path + ": cannot open");
+  std::stringstream text;
+  text << in.rdbuf();
+  return parse_inspection_record(text.str(), path, panel_types);
+}
+
+}  // namespace markcell::host

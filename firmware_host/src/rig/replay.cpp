@@ -1,0 +1,204 @@
+#include "markcell/host/rig/replay.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <stdexcept>
+
+#include "markcell/host/inspection_record.hpp"
+#include "markcell/vision/frame_source.hpp"
+#include "markcell/vision/recording.hpp"
+#include "markcell/vision/render.hpp"
+
+namespace markcell::host::rig {
+
+namespace {
+
+Eigen::Isometry3d to_isometry(const drivers::ToolPose& p) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  const Eigen::Vector3d r(p.rotation[0], p.rotation[1], p.rotation[2]);
+  if (r.norm() > 1e-15) X.linear() = Eigen::AngleAxisd(r.norm(), r.normalized()).toRotationMatrix();
+  X.translation() = Eigen::Vector3d(p.position[0], p.position[1], p.position[2]);
+  return X;
+}
+
+// The recorded truth between frames: translation linear, rotation by slerp.
+class TruthTrack {
+ public:
+  TruthTrack(const std::vector<vision::TruthPose>& truth, const vision::RecordingFrameSource& source) {
+    for (const auto& t : truth) poses_.push_back({source.to_cell_time(t.time), t.X_CamR_Panel});
+    std::sort(poses_.begin(), poses_.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  }
+  bool empty() const { return poses_.empty(); }
+  Eigen::Isometry3d at(Nanos t) const {
+    if (t <= poses_.front().first) return poses_.front().second;
+    if (t >= poses_.back().first) return poses_.back().second;
+    const auto it = std::lower_bound(poses_.begin(), poses_.end(), t, [](const auto& p, Nanos v) { return p.first < v; });
+    const auto& b = *it;
+    const auto& a = *(it - 1);
+    const double f = static_cast<double>(t - a.first) / static_cast<double>(b.first - a.first);
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() = Eigen::Quaterniond(a.second.linear()).slerp(f, Eigen::Quaterniond(b.second.linear())).toRotationMatrix();
+    X.translation() = (1 - f) * a.second.translation() + f * b.second.translation();
+    return X;
+  }
+
+ private:
+  std::vector<std::pair<Nanos, Eigen::Isometry3d>> poses_;
+};
+
+bool has_task(const CellConfig& c, const std::string& name) {
+  return std::any_of(c.executive.tasks.begin(), c.executive.tasks.end(), [&](const auto& t) { return t.name == name; });
+}
+
+PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
+                      const std::string& predictor, const ReplayOptions& options, const vision::Recording& rec) {
+  CellConfig cfg = base;
+  cfg.cameras.source = CameraSource::kRecording;
+  cfg.cameras.recording = recording;
+  cfg.marking.predictor = predictor;
+  cfg.watchdog.systemd = false;  // no service manager in a rig run
+  cfg.watchdog.device = false;
+  cfg.gpio.simulated = true;
+  cfg.arm.transport = cfg.arm.transport == ArmTransport::kSimulated ? cfg.arm.transport : ArmTransport::kSimulated;
+  cfg.executive.lock_memory = false;
+  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;  // simulated time needs no privileges
+
+  Cell cell(cfg, ClockKind::kSimulated);
+  cell.start();
+  const int present = cell.gpio_line(LineRole::kPlcPanelPresent);
+  const bool present_low = cfg.gpio.lines[static_cast<std::size_t>(present)].active_low;
+  cell.sim_gpio()->drive_physical(present, !present_low);
+  control::MarkingSequence& marking = *cell.marking();
+  marking.offer_job(job);
+  auto& source = static_cast<vision::RecordingFrameSource&>(*cell.frame_source());
+  control::SimClock& clock = *cell.sim_clock();
+  const Nanos end = source.end_time();
+  const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
+  auto progress = [&](Nanos t) {
+    if (!options.progress) return;
+    const auto& p = marking.current();
+    int sprayed = 0;
+    for (int i = 0; i < p.defect_count; ++i) sprayed += p.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
+    std::fprintf(stderr, "%s[%s] t=%5.1f/%.1f s  %-12s sprayed %d/%d  frames %llu%s", tty ? "\r" : "", predictor.c_str(),
+                 to_seconds(t), to_seconds(end), std::string(control::to_string(marking.state())).c_str(), sprayed,
+                 p.defect_count, static_cast<unsigned long long>(cell.vision_stats()->frames), tty ? "   " : "\n");
+  };
+  auto run_to = [&](Nanos t) {
+    if (clock.run_until(t) == control::SimClock::RunResult::kWedged)
+      throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock.global_now())) + " s");
+  };
+  for (Nanos t = seconds(1); marking.panels_completed() == 0; t += seconds(1)) {
+    run_to(std::min(t, end));
+    progress(clock.global_now());
+    if (t >= end) break;
+  }
+  // The panel leaves the station with the recording's end.
+  cell.sim_gpio()->drive_physical(present, present_low);
+  for (Nanos t = end + seconds(1); marking.panels_completed() == 0 && t <= end + options.tail; t += seconds(1)) {
+    run_to(t);
+    progress(t);
+  }
+  if (options.progress && tty) std::fprintf(stderr, "\n");
+  cell.shutdown(control::FaultCode::kShutdown, "rig", "replay finished");
+
+  PredictorRun run;
+  run.predictor = predictor;
+  run.panel = marking.current();
+  run.vision = *cell.vision_stats();
+  run.frames_skipped = source.skipped();
+  run.timing_report = cell.executive().timing_report();
+  for (std::size_t i = 0; i < cell.executive().spec().tasks.size(); ++i) {
+    run.deadline_misses += cell.executive().task_stats(static_cast<int>(i)).deadline_misses.load();
+    run.overruns += cell.executive().task_stats(static_cast<int>(i)).overruns.load();
+  }
+  control::Fault f;
+  while (cell.faults().pop(f)) {
+    char line[256];
+    std::snprintf(line, sizeof line, "t=%.3f s %s %s: %s", to_seconds(f.time), std::string(control::to_string(f.code)).c_str(),
+                  f.source.c_str(), f.detail.c_str());
+    run.faults.emplace_back(line);
+  }
+  for (std::size_t i = 0; i < marking.prediction_samples(); ++i) run.samples.push_back(marking.prediction_sample(i));
+  int sprayed = 0;
+  Nanos first = -1;
+  for (int i = 0; i < run.panel.defect_count; ++i) {
+    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
+    sprayed += d.sprayed ? 1 : 0;
+    if (d.approach_start >= 0 && (first < 0 || d.approach_start < first)) first = d.approach_start;
+  }
+  if (sprayed > 0 && first >= 0) run.seconds_per_defect = to_seconds(run.panel.finished - first) / sprayed;
+
+  // Scoring against the recording's truth.
+  if (!rec.manifest().has_truth || !rec.manifest().has_defects) return run;
+  const TruthTrack truth(rec.truth(), source);
+  if (truth.empty()) return run;
+  const vision::PanelShape panel = vision::panel_shape(rec.manifest().panel_type);
+  std::vector<TrueDefect> defects;
+  for (const auto& d : rec.defects()) defects.push_back({d.id, d.p_Panel});
+  auto true_centre = [&](int id, Nanos t) -> std::optional<Eigen::Vector3d> {
+    for (const auto& d : defects)
+      if (d.id == id) return truth.at(t) * d.p_Panel;
+    return std::nullopt;
+  };
+  std::vector<Spray> sprays;
+  const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
+  for (std::size_t i = 0; i < cell.sim_spray_count(); ++i)
+    sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * to_isometry(cell.sim_spray(i).tool)});
+  std::vector<SkippedDefect> skipped;
+  for (int i = 0; i < run.panel.defect_count; ++i) {
+    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
+    if (d.skipped != control::SkipReason::kNone) skipped.push_back({d.id, std::string(control::to_string(d.skipped))});
+  }
+  run.score = score_sprays(panel, [&](Nanos t) { return truth.at(t); }, defects, sprays, skipped, options.radius);
+  run.scored = true;
+  for (int i = 0; i < run.panel.defect_count; ++i) {
+    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
+    if (!d.sprayed) continue;
+    if (const auto c = true_centre(d.id, d.spray_requested)) {
+      const Eigen::Vector3d e = (d.predicted_centre_CamR - *c).cwiseAbs();
+      run.prediction_max_abs = run.prediction_max_abs ? run.prediction_max_abs->cwiseMax(e) : e;
+    }
+  }
+  double sq = 0;
+  for (const auto& s : run.samples) {
+    const auto c = true_centre(s.defect, s.time);
+    run.truth_samples.push_back({s.time, c ? *c : Eigen::Vector3d::Zero()});
+    run.one_frame_max_abs = run.one_frame_max_abs.cwiseMax((s.predicted_CamR - s.estimated_CamR).cwiseAbs());
+    if (!c) continue;
+    const double e = (s.estimated_CamR - *c).norm();
+    run.pose_error_max = std::max(run.pose_error_max, e);
+    sq += e * e;
+    ++run.pose_samples;
+  }
+  if (run.pose_samples > 0) run.pose_error_rms = std::sqrt(sq / run.pose_samples);
+  return run;
+}
+
+}  // namespace
+
+ReplayReport replay_recording(const CellConfig& config, const std::string& recording, const ReplayOptions& options) {
+  if (!has_task(config, "vision") || !has_task(config, "marking"))
+    throw std::runtime_error(config.file + ": executive.tasks needs the vision and marking tasks for a rig run");
+  const vision::Recording rec = vision::Recording::open(recording);
+  const std::string inspection = (std::filesystem::path(recording) / "inspection.yaml").string();
+  if (!std::filesystem::exists(inspection))
+    throw std::runtime_error(inspection + ": missing: a rig run needs the inspection station's record of the panel");
+  const control::PanelJob job = read_inspection_record(inspection, config.panel_types);
+  if (job.panel_type.view() != rec.manifest().panel_type)
+    throw std::runtime_error(inspection + ": panel_type '" + std::string(job.panel_type.view()) + "' but the recording is of '" +
+                             rec.manifest().panel_type + "'");
+  ReplayReport report;
+  report.scenario = rec.manifest().scenario.empty() ? std::filesystem::path(recording).filename().string() : rec.manifest().scenario;
+  report.recording = recording;
+  report.panel_type = rec.manifest().panel_type;
+  std::vector<std::string> kinds{config.marking.predictor};
+  if (options.both_predictors) kinds.push_back(config.marking.predictor == "kalman" ? "two-frame" : "kalman");
+  for (const auto& k : kinds) report.runs.push_back(run_once(config, recording, job, k, options, rec));
+  return report;
+}
+
+}  // namespace markcell::host::rig

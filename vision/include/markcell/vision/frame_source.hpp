@@ -1,0 +1,85 @@
+#pragma once
+// Where the vision task's stereo pairs come from: the cameras, or a recording replayed in
+// real or simulated time. The vision task asks, at each of its runs, for the newest pair
+// delivered by then; it never blocks on a live source.
+#include <condition_variable>
+#include <cstdint>
+#include <mutex>
+#include <string>
+#include <string_view>
+#include <thread>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "markcell/common/time.hpp"
+#include "markcell/vision/recording.hpp"
+
+namespace markcell::vision {
+
+struct StereoFrameRef {
+  std::uint64_t seq = 0;
+  Nanos time = 0;               // capture time on the cell's clock
+  std::size_t index = 0;        // position in the source (recordings: frames.csv row)
+  const cv::Mat* left = nullptr;
+  const cv::Mat* right = nullptr;
+  bool dropped = false;         // the pair cannot be used; `problem` says why
+  std::string_view problem;     // valid until the next call
+};
+
+enum class FrameResult : std::uint8_t { kFrame, kNone, kEnd, kStalled };
+
+class FrameSource {
+ public:
+  virtual ~FrameSource() = default;
+  // Frames are on the cell's clock from `epoch` on.
+  virtual void start(Nanos epoch) = 0;
+  virtual void stop() noexcept = 0;
+  // The newest pair delivered by `now` not handed out before (older undelivered ones are
+  // skipped and counted). The pair stays valid until the next call.
+  virtual FrameResult next(Nanos now, StereoFrameRef& out) noexcept = 0;
+  virtual std::uint64_t skipped() const = 0;
+};
+
+// A recording replayed: frame i is delivered at epoch + time_i + latency. A loader thread
+// (a device twin, like a camera's receive thread: it allocates while decoding PNGs)
+// decodes ahead into a small ring. In simulated time the caller waits for the loader
+// (real time, bounded by `stall_timeout`), so that a replay is the same however fast
+// the machine is; in real time it takes what is loaded.
+class RecordingFrameSource final : public FrameSource {
+ public:
+  RecordingFrameSource(const std::string& folder, Nanos latency, bool simulated_time,
+                       Nanos stall_timeout = seconds(60));
+  ~RecordingFrameSource() override;
+  void start(Nanos epoch) override;
+  void stop() noexcept override;
+  FrameResult next(Nanos now, StereoFrameRef& out) noexcept override;
+  std::uint64_t skipped() const override { return skipped_; }
+  const Recording& recording() const { return recording_; }
+  // When the last frame is delivered, on the cell's clock.
+  Nanos end_time() const;
+  // A recording's own time base on the cell's clock: its first frame is at the epoch.
+  Nanos to_cell_time(Nanos recording_time) const { return epoch_ + recording_time - time_base_; }
+
+ private:
+  static constexpr std::size_t kRing = 4;
+  void loader();
+  Recording recording_;
+  const Nanos latency_;
+  const bool simulated_;
+  const Nanos stall_timeout_;
+  Nanos epoch_ = 0;
+  Nanos time_base_ = 0;       // the first frame's capture time
+  std::vector<Nanos> times_;  // frames' capture times, read-only after construction
+  std::mutex mutex_;
+  std::condition_variable loaded_cv_, free_cv_;
+  std::array<ReplayFrame, kRing> ring_{};
+  std::size_t loaded_ = 0;     // frames loaded so far (ring holds [consumed_, loaded_))
+  std::size_t consumed_ = 0;   // frames released by the consumer
+  bool holding_ = false;       // the consumer holds ring_[(consumed_) % kRing]
+  bool stop_ = false;
+  std::uint64_t skipped_ = 0;
+  std::thread thread_;
+};
+
+}  // namespace markcell::vision

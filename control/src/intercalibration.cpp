@@ -13,6 +13,7 @@ std::string_view to_string(IntercalibrationStatus s) {
     case IntercalibrationStatus::kTooFewPoints: return "too few macro-features on both sides";
     case IntercalibrationStatus::kDegenerate: return "macro-features (nearly) collinear";
     case IntercalibrationStatus::kAboveLimit: return "inter-calibration error above the limit";
+    case IntercalibrationStatus::kOutliers: return "macro-features of the record and of the panel disagree";
   }
   return "?";
 }
@@ -53,7 +54,9 @@ Intercalibration intercalibrate(std::span<const Eigen::Vector3d> mfs_SL, std::sp
     sq += e.cwiseAbs2();
   }
   r.rms = (sq / r.inliers).cwiseSqrt();
-  r.status = r.max_abs.maxCoeff() > limits.max_abs_error ? IntercalibrationStatus::kAboveLimit : IntercalibrationStatus::kOk;
+  r.status = r.paired - r.inliers > limits.max_outliers ? IntercalibrationStatus::kOutliers
+             : r.max_abs.maxCoeff() > limits.max_abs_error ? IntercalibrationStatus::kAboveLimit
+                                                           : IntercalibrationStatus::kOk;
   return r;
 }
 

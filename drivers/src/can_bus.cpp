@@ -123,6 +123,11 @@ void SimCanWire::set_time_source(Nanos (*now)(void*), void* user) {
   a_.now_user_ = b_.now_user_ = user;
 }
 
+void SimCanWire::set_tap(void (*tap)(void*, const CanFrame&, Nanos), void* user) {
+  a_.tap_ = tap;
+  a_.tap_user_ = user;
+}
+
 void SimCanWire::End::inject(const CanFrame& frame) noexcept {
   if (!open_) return;
   if (count_ == kQueue) {
@@ -139,6 +144,7 @@ CanStatus SimCanWire::End::send(const CanFrame& frame) noexcept {
   if (!open_) return CanStatus::kNotOpen;
   if ((!frame.fd && frame.len > 8) || frame.len > 64) return CanStatus::kTooLong;
   peer_->inject(frame);  // a closed peer simply does not hear it, as on a real bus
+  if (tap_ != nullptr) tap_(tap_user_, frame, now_ != nullptr ? now_(now_user_) : monotonic_now());
   return CanStatus::kOk;
 }
 

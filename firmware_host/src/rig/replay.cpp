@@ -68,6 +68,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;  // simulated time needs no privileges
 
   Cell cell(cfg, ClockKind::kSimulated);
+  cell.enable_command_log(std::size_t{1} << 18);
   cell.start();
   const int present = cell.gpio_line(LineRole::kPlcPanelPresent);
   const bool present_low = cfg.gpio.lines[static_cast<std::size_t>(present)].active_low;
@@ -111,6 +112,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   run.vision = *cell.vision_stats();
   run.frames_skipped = source.skipped();
   run.timing_report = cell.executive().timing_report();
+  run.command_log = cell.command_log_text();
   for (std::size_t i = 0; i < cell.executive().spec().tasks.size(); ++i) {
     run.deadline_misses += cell.executive().task_stats(static_cast<int>(i)).deadline_misses.load();
     run.overruns += cell.executive().task_stats(static_cast<int>(i)).overruns.load();

@@ -276,6 +276,10 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
     std::fprintf(stderr, "markcell: plots of %s: %s\n", report.recording.c_str(), e.what());
   }
 
+  const std::string commands = (dir / "commands.log").string();
+  std::ofstream(commands) << main.command_log;
+  files.push_back(commands);
+
   const std::string json = (dir / "report.json").string();
   std::ofstream out(json);
   out << "{\n  \"scenario\": " << quote(report.scenario) << ",\n  \"recording\": " << quote(report.recording)
@@ -290,7 +294,12 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
          "\"prediction_error_mm\": {\"max_abs\": [9.67, 2.0, 2.0]}, \"seconds_per_defect\": {\"door\": 3.33, \"fender\": 3.75}, "
          "\"region_diameter_cm\": [2, 3], \"frame_rate_hz\": 0.5},\n";
   out << "  \"plots\": [";
-  for (std::size_t i = 0; i < files.size(); ++i) out << (i ? ", " : "") << quote(std::filesystem::path(files[i]).filename().string());
+  bool first_plot = true;
+  for (const auto& f : files)
+    if (f.ends_with(".png")) {
+      out << (first_plot ? "" : ", ") << quote(std::filesystem::path(f).filename().string());
+      first_plot = false;
+    }
   out << "]\n}\n";
   out.close();
   files.insert(files.begin(), json);

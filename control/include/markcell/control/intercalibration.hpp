@@ -18,9 +18,10 @@ struct IntercalibrationLimits {
   double max_abs_error = 0.02;   // m, per axis: above it the panel is not marked
   double inlier_threshold = 0.02;  // m, RANSAC consensus
   int min_points = 4;
+  int max_outliers = 2;  // more MFs than this disagreeing with the fit: the record is not this panel's
 };
 
-enum class IntercalibrationStatus : std::uint8_t { kOk, kTooFewPoints, kDegenerate, kAboveLimit };
+enum class IntercalibrationStatus : std::uint8_t { kOk, kTooFewPoints, kDegenerate, kAboveLimit, kOutliers };
 std::string_view to_string(IntercalibrationStatus s);
 
 struct Intercalibration {

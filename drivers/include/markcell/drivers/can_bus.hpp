@@ -94,12 +94,17 @@ class SimCanWire {
     std::uint64_t dropped_ = 0;
     Nanos (*now_)(void*) = nullptr;
     void* now_user_ = nullptr;
+    void (*tap_)(void*, const CanFrame&, Nanos) = nullptr;
+    void* tap_user_ = nullptr;
   };
   SimCanWire();
   End& a() { return a_; }
   End& b() { return b_; }
   // Reception timestamps come from here (default: CLOCK_MONOTONIC).
   void set_time_source(Nanos (*now)(void*), void* user);
+  // Every frame sent from end a (the controller's), with the time it was sent: how the
+  // rig keeps its command log. The tap must not allocate (it runs on the control lane).
+  void set_tap(void (*tap)(void* user, const CanFrame& frame, Nanos time), void* user);
 
  private:
   End a_, b_;

@@ -73,6 +73,12 @@ class Cell {
   // Valve openings seen by the simulated world (simulated arm only), oldest first.
   std::size_t sim_spray_count() const { return sim_world_ ? std::min(sim_world_->spray_count, sim_world_->sprays.size()) : 0; }
   const SimSpray& sim_spray(std::size_t i) const { return sim_world_->sprays[i]; }
+  // The rig's command log: every CAN frame the controller sends to the simulated arm and
+  // every valve opening and closing, with simulated times (candump -L style lines).
+  // Storage for `capacity` entries is taken here, before start(); a full log counts
+  // what it could not keep. Simulated arm only.
+  void enable_command_log(std::size_t capacity);
+  std::string command_log_text() const;
   // The marking sequence and the vision task (null when not in the task table).
   control::MarkingSequence* marking() { return marking_.get(); }
   vision::FrameSource* frame_source() { return frame_source_.get(); }
@@ -100,6 +106,17 @@ class Cell {
     bool valve_was_open = false;
     std::array<SimSpray, 256> sprays{};
     std::size_t spray_count = 0;
+    struct LogEntry {
+      Nanos time = 0;
+      std::int8_t valve = -1;  // -1: a CAN frame; 0 closed, 1 opened
+      drivers::CanFrame frame;
+    };
+    std::vector<LogEntry> log;  // capacity reserved once; never grows past it
+    std::uint64_t log_dropped = 0;
+    void record(const LogEntry& e) {
+      if (log.size() < log.capacity()) log.push_back(e);
+      else ++log_dropped;
+    }
     static control::TaskResult task(control::TaskContext& ctx, void* self);
   };
   struct VisionTask {

@@ -51,6 +51,7 @@ struct PredictorRun {
   std::vector<std::string> faults;
   std::vector<control::PredictionSample> samples;
   std::vector<TimedPoint> truth_samples;        // the same defect's true position at each sample
+  std::string command_log;                      // every command to the arm and the valve, simulated time
 };
 
 struct ReplayReport {

@@ -1,0 +1,189 @@
+// The rig end to end, as a user runs it: markcell sim generates a short scenario and
+// replays it through the cell in simulated time; markcell replay of the same recording
+// gives the same command log and report byte for byte; a bad inspection record is
+// rejected with its line and field; a record whose MFs do not match the panel stops the
+// panel with the PLC told and nothing sprayed. Figures are asserted from report.json.
+#include <catch2/catch.hpp>
+#include <array>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <vector>
+#include <string>
+
+#include "markcell/host/config.hpp"
+#include "markcell/host/cell.hpp"
+#include "markcell/host/inspection_record.hpp"
+#include "test_files.hpp"
+
+using namespace markcell;
+using markcell::test::read_file;
+using markcell::test::run_command;
+using markcell::test::source_path;
+
+namespace {
+const std::string kMarkcell = MARKCELL_BINARY;
+
+// A number after "key": in the first occurrence of `section` (simple, for our own JSON).
+double json_number(const std::string& json, const std::string& section, const std::string& key) {
+  const auto s = json.find("\"" + section + "\"");
+  REQUIRE(s != std::string::npos);
+  const auto k = json.find("\"" + key + "\": ", s);
+  REQUIRE(k != std::string::npos);
+  return std::stod(json.substr(k + key.size() + 4));
+}
+
+
+// One short scenario for the whole file: 3 s of the paper's door at 10 frames a second.
+const std::string& sim_dir() {
+  static test::TempDir dir;
+  static const std::string out = (dir.path() / "sim").string();
+  static bool done = false;
+  if (!done) {
+    const auto r = run_command("cd " + source_path("") + " && " + kMarkcell +
+                               " sim paper-door --seconds 3 --fps 10 --one-predictor -q --out " + out);
+    INFO(r.output);
+    REQUIRE(r.exit_code == 0);
+    done = true;
+  }
+  return out;
+}
+}  // namespace
+
+TEST_CASE("markcell sim paper-door: all three dings marked within the radius, no false spray, Table I below the paper's") {
+  const std::string json = read_file(sim_dir() + "/report.json");
+  INFO(json);
+  CHECK(json.find("\"scenario\": \"paper-door\"") != std::string::npos);
+  CHECK(json.find("\"predictor\": \"kalman\"") != std::string::npos);
+  CHECK(json_number(json, "defects", "planned") == 3);
+  CHECK(json_number(json, "defects", "marked") == 3);
+  CHECK(json_number(json, "defects", "skipped") == 0);
+  CHECK(json_number(json, "false_sprays", "false_sprays") == 0);
+  CHECK(json_number(json, "marking_error_mm", "max") < 5.0);
+  // Inter-calibration max |error| per axis, cm: the paper's means were 1.63 / 0.89 / 2.01.
+  const auto ic = json.find("\"intercalibration_cm\": {\"max_abs\": [");
+  REQUIRE(ic != std::string::npos);
+  std::istringstream in(json.substr(json.find('[', ic) + 1));
+  double x = 0, y = 0, z = 0;
+  char comma = 0;
+  in >> x >> comma >> y >> comma >> z;
+  CHECK(x < 1.63);
+  CHECK(y < 0.89);
+  CHECK(z < 2.01);
+  CHECK(json_number(json, "deadline_misses", "deadline_misses") == 0);
+  for (const char* f : {"prediction.png", "mf_epipolar.png", "mf_area.png", "sprays.png", "commands.log"})
+    CHECK(std::filesystem::exists(sim_dir() + "/" + f));
+  // Three valve pulses in the command log, each opened and closed.
+  const std::string log = read_file(sim_dir() + "/commands.log");
+  std::size_t opens = 0, closes = 0;
+  for (auto p = log.find("valve open"); p != std::string::npos; p = log.find("valve open", p + 1)) ++opens;
+  for (auto p = log.find("valve close"); p != std::string::npos; p = log.find("valve close", p + 1)) ++closes;
+  CHECK(opens == 3);
+  CHECK(closes == 3);
+}
+
+TEST_CASE("replaying the same recording gives the same command log and report, byte for byte") {
+  test::TempDir dir;
+  const std::string out = (dir.path() / "again").string();
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + sim_dir() +
+                             "/recording --one-predictor -q --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  CHECK(read_file(out + "/commands.log") == read_file(sim_dir() + "/commands.log"));
+  CHECK(read_file(out + "/report.json") == read_file(sim_dir() + "/report.json"));
+}
+
+TEST_CASE("inspection records: every bad field is rejected with its file, line and what is wrong") {
+  const auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  const std::string good = read_file(sim_dir() + "/recording/inspection.yaml");
+  const auto job = host::parse_inspection_record(good, "inspection.yaml", cfg.panel_types);
+  CHECK(job.mf_count == 10);
+  CHECK(job.defect_count == 3);
+  CHECK(job.panel_type_index == 0);
+  auto bad = [&](const std::string& from, const std::string& to) {
+    std::string text = good;
+    const auto p = text.find(from);
+    REQUIRE(p != std::string::npos);
+    text.replace(p, from.size(), to);
+    try {
+      host::parse_inspection_record(text, "rec.yaml", cfg.panel_types);
+    } catch (const host::RecordInvalid& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  CHECK(bad("panel_type: door", "panel_type: hood") == "rec.yaml:2:13: panel_type: 'hood' is not configured in panel_types");
+  CHECK(bad("units: m", "units: mm") == "rec.yaml:4:8: units: must be m");
+  CHECK(bad("  - id: 2", "  - id: 1").find("duplicate defect id 1") != std::string::npos);
+  const auto first_mf = good.find("  - [", good.find("macro_features:"));
+  const std::string mf_line = good.substr(first_mf, good.find('\n', first_mf) - first_mf);
+  const std::string nan = bad(mf_line, "  - [.nan, 0.1, 2.0]");
+  CHECK(nan.find("rec.yaml:6:") == 0);
+  CHECK(nan.find("macro_features[0]: not a finite number") != std::string::npos);
+  const std::string units = bad(mf_line, "  - [150.0, 100.0, 2000.0]");
+  CHECK(units.find("units must be metres") != std::string::npos);
+  const auto last_mf = good.find("defects:");
+  std::string nine = good;
+  nine.erase(good.rfind("  - [", last_mf), last_mf - good.rfind("  - [", last_mf));
+  try {
+    host::parse_inspection_record(nine, "rec.yaml", cfg.panel_types);
+    FAIL("a record with 9 MFs of 10 was accepted");
+  } catch (const host::RecordInvalid& e) {
+    CHECK(std::string(e.what()).find("macro_features: 9 given, panel type 'door' has 10") != std::string::npos);
+  }
+}
+
+TEST_CASE("a record that does not match the panel: inter-calibration rejected, nothing sprayed, PLC fault, reason recorded") {
+  test::TempDir dir;
+  const auto rec = dir.path() / "recording";
+  std::filesystem::copy(sim_dir() + "/recording", rec, std::filesystem::copy_options::recursive);
+  // Another panel type's record: the same layout 10 % larger (a wrong door).
+  std::istringstream lines(read_file((rec / "inspection.yaml").string()));
+  std::vector<std::string> out_lines;
+  std::vector<std::array<double, 3>> mfs;
+  std::string line;
+  bool in_mfs = false;
+  while (std::getline(lines, line)) {
+    if (line == "macro_features:") in_mfs = true;
+    else if (line == "defects:") in_mfs = false;
+    else if (in_mfs) {
+      std::array<double, 3> p{};
+      char c = 0;
+      std::istringstream(line.substr(line.find('[') + 1)) >> p[0] >> c >> p[1] >> c >> p[2];
+      mfs.push_back(p);
+      line = "@MF" + std::to_string(mfs.size() - 1);
+    }
+    out_lines.push_back(line);
+  }
+  REQUIRE(mfs.size() == 10);
+  std::array<double, 3> mean{};
+  for (const auto& p : mfs)
+    for (int k = 0; k < 3; ++k) mean[static_cast<std::size_t>(k)] += p[static_cast<std::size_t>(k)] / 10;
+  std::string text;
+  for (const auto& l : out_lines) {
+    if (l.rfind("@MF", 0) == 0) {
+      const auto& p = mfs[std::stoul(l.substr(3))];
+      text += "  - [";
+      for (int k = 0; k < 3; ++k) {
+        const auto u = static_cast<std::size_t>(k);
+        text += std::to_string(mean[u] + 1.1 * (p[u] - mean[u])) + (k < 2 ? ", " : "]\n");
+      }
+    } else {
+      text += l + "\n";
+    }
+  }
+  std::ofstream((rec / "inspection.yaml").string()) << text;
+  const std::string out = (dir.path() / "out").string();
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+                             " --one-predictor -q --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  const std::string json = read_file(out + "/report.json");
+  INFO(json);
+  CHECK(json.find("\"status\": \"macro-features of the record and of the panel disagree\"") != std::string::npos);
+  CHECK(json.find("\"fault\": true") != std::string::npos);
+  CHECK(json_number(json, "defects", "sprayed") == 0);
+  CHECK(json_number(json, "defects", "skipped") == 3);
+  CHECK(json.find("inter-calibration failed or above its limit") != std::string::npos);
+  CHECK(read_file(out + "/commands.log").find("valve open") == std::string::npos);
+}

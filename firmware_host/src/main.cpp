@@ -313,6 +313,12 @@ int main(int argc, char** argv) {
   loop->add_option("--lane", loop_options.lane, "Which lane of the configuration to measure");
   loop->add_option("--json", loop_options.json_path, "Write the results as JSON to this file");
   loop->add_option("--cyclictest", loop_options.cyclictest, "The cyclictest executable");
+  VisionBenchOptions vision_options;
+  auto* vision_bench = bench->add_subcommand("vision", "The vision task per stereo pair vs cv::buildOpticalFlowPyramid (the floor), one thread");
+  vision_bench->add_option("--config,-c", bench_config, "Cell configuration (calibration, panel types, tracker settings)");
+  vision_bench->add_option("--frames", vision_options.frames, "Stereo pairs to time (rendered first)")->check(CLI::Range(10, 100000));
+  vision_bench->add_option("--scenario", vision_options.scenario, "Rig scenario whose frames are rendered");
+  vision_bench->add_option("--json", vision_options.json_path, "Write the results as JSON to this file");
 
   try {
     app.parse(argc, argv);
@@ -349,6 +355,11 @@ int main(int argc, char** argv) {
         return kExitConfig;
       }
       return run_command(run_file, clock_name, run_seconds);
+    }
+    if (*vision_bench) {
+      const auto config = load_or_report(bench_config);
+      if (!config) return kExitConfig;
+      return bench_vision(*config, vision_options);
     }
     if (*loop) {
       CellConfig config;

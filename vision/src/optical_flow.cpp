@@ -38,31 +38,39 @@ void Pyramid::build(const cv::Mat& gray8) {
   MARKCELL_THROW_UNLESS(gray8.type() == CV_8UC1 && gray8.cols == w_[0] && gray8.rows == h_[0],
                         "image " << gray8.cols << "x" << gray8.rows << " type " << gray8.type() << ", pyramid "
                                  << w_[0] << "x" << h_[0] << " CV_8UC1");
-  for (int y = 0; y < h_[0]; ++y) {
-    const std::uint8_t* in = gray8.ptr<std::uint8_t>(y);
-    float* out = data_[0].data() + static_cast<std::size_t>(y) * static_cast<std::size_t>(w_[0]);
-    for (int x = 0; x < w_[0]; ++x) out[x] = in[x];
-  }
+  // OpenCV's vectorised conversion into our own storage (a header over it: no allocation,
+  // the destination already has the size and type convertTo asks for).
+  cv::Mat level0(h_[0], w_[0], CV_32F, data_[0].data());
+  gray8.convertTo(level0, CV_32F);
   for (int l = 1; l < levels_; ++l) {
     const auto s = static_cast<std::size_t>(l - 1), d = static_cast<std::size_t>(l);
     const int sw = w_[s], sh = h_[s], dw = w_[d], dh = h_[d];
     const float* src = data_[s].data();
-    // Horizontal pass at the even columns, into scratch (sh rows of dw).
-    for (int y = 0; y < sh; ++y)
+    // Horizontal pass at the even columns, into scratch (sh rows of dw); the reflected
+    // border only where the kernel leaves the row.
+    for (int y = 0; y < sh; ++y) {
+      const float* in = src + static_cast<std::size_t>(y) * static_cast<std::size_t>(sw);
+      float* out = scratch_.data() + static_cast<std::size_t>(y) * static_cast<std::size_t>(dw);
       for (int x = 0; x < dw; ++x) {
-        float acc = 0;
-        for (int i = 0; i < 5; ++i)
-          acc += kBinomial[static_cast<std::size_t>(i)] * src[static_cast<std::size_t>(y * sw + reflect101(2 * x + i - 2, sw))];
-        scratch_[static_cast<std::size_t>(y * dw + x)] = acc;
+        const int c = 2 * x;
+        if (c >= 2 && c + 2 < sw) {
+          out[x] = kBinomial[0] * (in[c - 2] + in[c + 2]) + kBinomial[1] * (in[c - 1] + in[c + 1]) + kBinomial[2] * in[c];
+        } else {
+          float acc = 0;
+          for (int k = 0; k < 5; ++k) acc += kBinomial[static_cast<std::size_t>(k)] * in[reflect101(c + k - 2, sw)];
+          out[x] = acc;
+        }
       }
+    }
     float* dst = data_[d].data();
-    for (int y = 0; y < dh; ++y)
-      for (int x = 0; x < dw; ++x) {
-        float acc = 0;
-        for (int j = 0; j < 5; ++j)
-          acc += kBinomial[static_cast<std::size_t>(j)] * scratch_[static_cast<std::size_t>(reflect101(2 * y + j - 2, sh) * dw + x)];
-        dst[static_cast<std::size_t>(y * dw + x)] = acc;
-      }
+    for (int y = 0; y < dh; ++y) {
+      const float* rows[5];
+      for (int k = 0; k < 5; ++k)
+        rows[k] = scratch_.data() + static_cast<std::size_t>(reflect101(2 * y + k - 2, sh)) * static_cast<std::size_t>(dw);
+      float* out = dst + static_cast<std::size_t>(y) * static_cast<std::size_t>(dw);
+      for (int x = 0; x < dw; ++x)
+        out[x] = kBinomial[0] * (rows[0][x] + rows[4][x]) + kBinomial[1] * (rows[1][x] + rows[3][x]) + kBinomial[2] * rows[2][x];
+    }
   }
 }
 
@@ -80,7 +88,8 @@ LkResult track_point(const Pyramid& from, const Pyramid& to, const Eigen::Vector
   const int r = std::clamp(params.radius, 1, kMaxLkRadius);
   const int n = 2 * r + 1;
   std::array<float, (2 * kMaxLkRadius + 1) * (2 * kMaxLkRadius + 1)> I{}, Ix{}, Iy{};
-  const int top = std::min(from.levels(), to.levels()) - 1;
+  std::array<float, (2 * kMaxLkRadius + 3) * (2 * kMaxLkRadius + 3)> P{};
+  const int top = std::min({from.levels(), to.levels(), params.max_levels > 0 ? params.max_levels : kMaxPyramidLevels}) - 1;
   Eigen::Vector2d g = (guess - p) / static_cast<double>(1 << top);  // displacement at the top level
   const double margin = r + 2;
   for (int level = top; level >= 0; --level) {
@@ -92,14 +101,19 @@ LkResult track_point(const Pyramid& from, const Pyramid& to, const Eigen::Vector
       g *= 2;
       continue;
     }
+    // The window plus a one-pixel border, sampled once; gradients by central differences.
+    const int np = n + 2;
+    for (int j = 0; j < np; ++j)
+      for (int i = 0; i < np; ++i)
+        P[static_cast<std::size_t>(j * np + i)] = from.sample(level, pl.x() + i - r - 1, pl.y() + j - r - 1);
     double a = 0, b = 0, c = 0;
-    for (int j = -r, k = 0; j <= r; ++j)
-      for (int i = -r; i <= r; ++i, ++k) {
-        const double x = pl.x() + i, y = pl.y() + j;
+    for (int j = 0, k = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i, ++k) {
         const auto ku = static_cast<std::size_t>(k);
-        I[ku] = from.sample(level, x, y);
-        Ix[ku] = 0.5f * (from.sample(level, x + 1, y) - from.sample(level, x - 1, y));
-        Iy[ku] = 0.5f * (from.sample(level, x, y + 1) - from.sample(level, x, y - 1));
+        const auto at = [&](int di, int dj) { return P[static_cast<std::size_t>((j + 1 + dj) * np + (i + 1 + di))]; };
+        I[ku] = at(0, 0);
+        Ix[ku] = 0.5f * (at(1, 0) - at(-1, 0));
+        Iy[ku] = 0.5f * (at(0, 1) - at(0, -1));
         a += Ix[ku] * Ix[ku];
         b += Ix[ku] * Iy[ku];
         c += Iy[ku] * Iy[ku];
@@ -122,14 +136,26 @@ LkResult track_point(const Pyramid& from, const Pyramid& to, const Eigen::Vector
         outside = true;
         break;
       }
+      // Every window pixel shares q's fractional offset: one set of bilinear weights.
+      const double qx = q.x() - r, qy = q.y() - r;
+      const int x0 = static_cast<int>(std::floor(qx)), y0 = static_cast<int>(std::floor(qy));
+      const auto fx = static_cast<float>(qx - x0), fy = static_cast<float>(qy - y0);
+      const float w00 = (1 - fx) * (1 - fy), w01 = fx * (1 - fy), w10 = (1 - fx) * fy, w11 = fx * fy;
       double bx = 0, by = 0;
-      for (int j = -r, k = 0; j <= r; ++j)
-        for (int i = -r; i <= r; ++i, ++k) {
+      for (int j = 0, k = 0; j < n; ++j) {
+        const float* r0 = to.row(level, y0 + j) + x0;
+        const float* r1 = to.row(level, y0 + j + 1) + x0;
+        float sx = 0, sy = 0;
+        for (int i = 0; i < n; ++i, ++k) {
           const auto ku = static_cast<std::size_t>(k);
-          const double diff = I[ku] - to.sample(level, q.x() + i, q.y() + j);
-          bx += diff * Ix[ku];
-          by += diff * Iy[ku];
+          const float J = w00 * r0[i] + w01 * r0[i + 1] + w10 * r1[i] + w11 * r1[i + 1];
+          const float diff = I[ku] - J;
+          sx += diff * Ix[ku];
+          sy += diff * Iy[ku];
         }
+        bx += sx;
+        by += sy;
+      }
       const Eigen::Vector2d step((c * bx - b * by) / det, (a * by - b * bx) / det);
       v += step;
       if (step.squaredNorm() < params.epsilon * params.epsilon) break;
@@ -153,18 +179,29 @@ LkResult track_point(const Pyramid& from, const Pyramid& to, const Eigen::Vector
 }
 
 bool refine_corner(const Pyramid& image, Eigen::Vector2d& p, int radius, int max_iterations, double epsilon) {
-  Eigen::Vector2d q = p;
+  radius = std::clamp(radius, 1, kMaxLkRadius);
+  const int n = 2 * radius + 1, np = n + 2;
+  std::array<float, (2 * kMaxLkRadius + 1) * (2 * kMaxLkRadius + 1)> weight{};
+  std::array<float, (2 * kMaxLkRadius + 3) * (2 * kMaxLkRadius + 3)> P{};
   const double sigma2 = 0.5 * radius * radius;
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      weight[static_cast<std::size_t>(j * n + i)] =
+          static_cast<float>(std::exp(-((i - radius) * (i - radius) + (j - radius) * (j - radius)) / (2 * sigma2)));
+  Eigen::Vector2d q = p;
   for (int it = 0; it < max_iterations; ++it) {
     if (!image.inside(0, q.x(), q.y(), radius + 2)) return false;
+    for (int j = 0; j < np; ++j)
+      for (int i = 0; i < np; ++i)
+        P[static_cast<std::size_t>(j * np + i)] = image.sample(0, q.x() + i - radius - 1, q.y() + j - radius - 1);
     double a = 0, b = 0, c = 0, b1 = 0, b2 = 0;
-    for (int j = -radius; j <= radius; ++j)
-      for (int i = -radius; i <= radius; ++i) {
-        const double x = q.x() + i, y = q.y() + j;
-        const double w = std::exp(-(i * i + j * j) / (2 * sigma2));
-        const double gx = 0.5 * (image.sample(0, x + 1, y) - image.sample(0, x - 1, y));
-        const double gy = 0.5 * (image.sample(0, x, y + 1) - image.sample(0, x, y - 1));
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i) {
+        const auto at = [&](int di, int dj) { return P[static_cast<std::size_t>((j + 1 + dj) * np + (i + 1 + di))]; };
+        const double w = weight[static_cast<std::size_t>(j * n + i)];
+        const double gx = 0.5 * (at(1, 0) - at(-1, 0)), gy = 0.5 * (at(0, 1) - at(0, -1));
         const double gxx = gx * gx * w, gxy = gx * gy * w, gyy = gy * gy * w;
+        const double x = q.x() + i - radius, y = q.y() + j - radius;
         a += gxx;
         b += gxy;
         c += gyy;

@@ -314,12 +314,17 @@ void PanelTracker::track() {
     // Frame to frame in the left view, seeded by the MF's last motion, checked backwards.
     const LkResult fwd = track_point(prev, L, prev_left_[k], prev_left_[k] + velocity_[k], params_.lk);
     if (fwd.status != LkStatus::kOk) continue;
-    const LkResult back = track_point(L, prev, fwd.point, prev_left_[k], params_.lk);
+    // Backwards the answer is known to within the check's tolerance: level 0 suffices.
+    LkParams fine = params_.lk;
+    fine.max_levels = 1;
+    const LkResult back = track_point(L, prev, fwd.point, prev_left_[k], fine);
     if (back.status != LkStatus::kOk || (back.point - prev_left_[k]).norm() > params_.forward_backward_px) continue;
     Eigen::Vector2d left = fwd.point;
     if (!refine_corner(L, left, params_.corner_radius)) continue;
     // Left to right, seeded by the last disparity.
-    const LkResult lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), params_.lk);
+    // The disparity changes little between frames: level 0 first, the pyramid if that fails.
+    LkResult lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), fine);
+    if (lr.status != LkStatus::kOk) lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), params_.lk);
     if (lr.status != LkStatus::kOk) continue;
     Eigen::Vector2d right = lr.point;
     if (!verify_pair(left, right)) continue;

@@ -310,7 +310,7 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
   std::ostringstream o;
   char line[256];
   o << "marking (" << report.scenario << ", " << report.panel_type << "):\n";
-  std::snprintf(line, sizeof line, "  %-34s", "");
+  std::snprintf(line, sizeof line, "  %-38s", "");
   o << line;
   for (const auto& r : report.runs) {
     std::snprintf(line, sizeof line, "%-16s", r.predictor.c_str());
@@ -318,7 +318,7 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
   }
   o << "paper\n";
   auto row = [&](const char* name, auto get, const char* paper) {
-    std::snprintf(line, sizeof line, "  %-34s", name);
+    std::snprintf(line, sizeof line, "  %-38s", name);
     o << line;
     for (const auto& r : report.runs) {
       std::snprintf(line, sizeof line, "%-16s", get(r).c_str());

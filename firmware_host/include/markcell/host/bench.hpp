@@ -17,4 +17,13 @@ struct LoopBenchOptions {
 // Returns the process exit code; prints the comparison on stdout.
 int bench_loop(const CellConfig& config, const LoopBenchOptions& options);
 
+// `markcell bench vision`: the vision task per stereo pair vs cv::buildOpticalFlowPyramid
+// on the same two images (the floor), one thread, over rendered frames.
+struct VisionBenchOptions {
+  int frames = 1000;
+  std::string scenario = "paper-door";
+  std::string json_path;
+};
+int bench_vision(const CellConfig& config, const VisionBenchOptions& options);
+
 }  // namespace markcell::host

@@ -46,6 +46,7 @@ struct LkParams {
   int max_iterations = 30;
   double epsilon = 0.01;      // stop when the update is below this, pixels
   double min_eigen = 1e-4;    // of the window's gradient matrix / window area (OpenCV's minEigThreshold)
+  int max_levels = 0;         // use at most this many pyramid levels (0: all); a close guess needs only level 0
 };
 
 enum class LkStatus : std::uint8_t { kOk, kOutside, kFlat };

@@ -594,8 +594,9 @@ void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
                        "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm"}))
     return;
   r.number(node, P, "standoff_m", m.standoff_m, 0.01, 1.0, false);
-  long long lead = 10, settle = 40, age = 400;
-  double defect = 6, acquire = 10, home = 10;
+  // Absent keys keep the defaults of MarkingConfig.
+  long long lead = m.command_lead / 1'000'000, settle = m.settle / 1'000'000, age = m.max_prediction_age / 1'000'000;
+  double defect = to_seconds(m.defect_timeout), acquire = to_seconds(m.acquire_timeout), home = to_seconds(m.home_timeout);
   r.integer(node, P, "command_lead_ms", lead, 0, 1000, false);
   r.number(node, P, "settle_mm", m.settle_mm, 0.05, 50.0, false);
   r.number(node, P, "settle_deg", m.settle_deg, 0.01, 30.0, false);

@@ -89,7 +89,7 @@ struct MarkingParams {
   Eigen::Isometry3d X_Base_CamR = Eigen::Isometry3d::Identity();
   double standoff = 0.20;            // m, nozzle to surface (paper: 20 cm pre-contact)
   double reach = 1.6;                // m, from the base origin
-  Nanos command_lead = millis(10);   // set-points are for now + lead (link and arm latency)
+  Nanos command_lead = millis(35);   // set-points are for now + lead (link and arm latency, pursuit lag)
   double settle_position = 0.0015;   // m
   double settle_angle = 0.01;        // rad
   Nanos settle_time = millis(40);

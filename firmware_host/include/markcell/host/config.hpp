@@ -149,7 +149,7 @@ struct VisionConfig {
 // The marking sequence (control::MarkingParams), as configured.
 struct MarkingConfig {
   double standoff_m = 0.20;
-  Nanos command_lead = millis(10);
+  Nanos command_lead = millis(35);
   double settle_mm = 1.5;
   double settle_deg = 0.6;
   Nanos settle = millis(40);

@@ -59,7 +59,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
                     right[static_cast<std::size_t>(i)]);
   }
   std::vector<double> ours, floor;
-  int poses = 0, mfs = 0;
+  int poses = 0, mfs = 0, reinits = 0;
   std::vector<cv::Mat> pyr_l, pyr_r;
   for (int i = 0; i < options.frames; ++i) {
     const auto k = static_cast<std::size_t>(i);
@@ -71,6 +71,15 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
     cv::buildOpticalFlowPyramid(right[k], pyr_r, cv::Size(config.vision.lk_window_px, config.vision.lk_window_px),
                                 config.vision.pyramid_levels - 1);
     const Nanos t2 = monotonic_now();
+    // As in the cell, where the inter-calibration places the MFs the search did not find
+    // (here from the rig's truth), so that they are picked up as they come into view.
+    if (e.status == vision::TrackStatus::kReinitialised) {
+      const Nanos t = static_cast<Nanos>(static_cast<double>(i) * 1e9 / fps) % scenario.duration;
+      for (int m = 0; m < model.count; ++m)
+        if (!tracker.reference_known()[static_cast<std::size_t>(m)])
+          tracker.set_reference(m, motion.X_CamR_Panel(t) * panel.macro_features[static_cast<std::size_t>(m)]);
+      ++reinits;
+    }
     if (i == 0) continue;  // the first pair searches for the panel (re-initialisation), timed apart
     ours.push_back(to_seconds(t1 - t0) * 1e3);
     floor.push_back(to_seconds(t2 - t1) * 1e3);
@@ -84,14 +93,15 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
   std::printf("  markcell (pyramids + tracking + triangulation + pose)  median %.3f ms  p99 %.3f ms  max %.3f ms\n", m_ours, p99_ours,
               max_ours);
   std::printf("  floor: cv::buildOpticalFlowPyramid x2               median %.3f ms  p99 %.3f ms\n", m_floor, p99_floor);
-  std::printf("  ratio of medians %.2f (target <= 2); p99 %.3f ms (target < 5 ms); poses %d of %zu, mean MFs in the pose %.1f\n",
-              m_ours / m_floor, p99_ours, poses, ours.size(), static_cast<double>(mfs) / static_cast<double>(ours.size()));
+  std::printf("  ratio of medians %.2f (target <= 2); p99 %.3f ms (target < 5 ms); poses %d of %zu, mean MFs in the pose %.1f, "
+              "searches %d\n",
+              m_ours / m_floor, p99_ours, poses, ours.size(), static_cast<double>(mfs) / static_cast<double>(ours.size()), reinits);
   if (!options.json_path.empty()) {
     std::ofstream out(options.json_path);
     out << "{\"pairs\": " << ours.size() << ", \"width\": " << rig.width() << ", \"height\": " << rig.height()
         << ", \"macro_features\": " << model.count << ", \"scenario\": \"" << options.scenario << "\", \"markcell_ms\": {\"median\": "
         << m_ours << ", \"p99\": " << p99_ours << ", \"max\": " << max_ours << "}, \"floor_ms\": {\"median\": " << m_floor
-        << ", \"p99\": " << p99_floor << "}, \"ratio\": " << m_ours / m_floor << ", \"poses\": " << poses << "}\n";
+        << ", \"p99\": " << p99_floor << "}, \"ratio\": " << m_ours / m_floor << ", \"poses\": " << poses << ", \"searches\": " << reinits << "}\n";
   }
   return 0;
 }

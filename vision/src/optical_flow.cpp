@@ -46,30 +46,26 @@ void Pyramid::build(const cv::Mat& gray8) {
     const auto s = static_cast<std::size_t>(l - 1), d = static_cast<std::size_t>(l);
     const int sw = w_[s], sh = h_[s], dw = w_[d], dh = h_[d];
     const float* src = data_[s].data();
-    // Horizontal pass at the even columns, into scratch (sh rows of dw); the reflected
-    // border only where the kernel leaves the row.
-    for (int y = 0; y < sh; ++y) {
-      const float* in = src + static_cast<std::size_t>(y) * static_cast<std::size_t>(sw);
-      float* out = scratch_.data() + static_cast<std::size_t>(y) * static_cast<std::size_t>(dw);
+    float* dst = data_[d].data();
+    float* tmp = scratch_.data();  // one filtered source row
+    for (int y = 0; y < dh; ++y) {
+      // Vertical first, over whole contiguous rows (vectorises), at the even rows only ...
+      const float* rows[5];
+      for (int k = 0; k < 5; ++k) rows[k] = src + static_cast<std::size_t>(reflect101(2 * y + k - 2, sh)) * static_cast<std::size_t>(sw);
+      for (int x = 0; x < sw; ++x)
+        tmp[x] = kBinomial[0] * (rows[0][x] + rows[4][x]) + kBinomial[1] * (rows[1][x] + rows[3][x]) + kBinomial[2] * rows[2][x];
+      // ... then horizontal at the even columns; the reflected border only at the ends.
+      float* out = dst + static_cast<std::size_t>(y) * static_cast<std::size_t>(dw);
       for (int x = 0; x < dw; ++x) {
         const int c = 2 * x;
         if (c >= 2 && c + 2 < sw) {
-          out[x] = kBinomial[0] * (in[c - 2] + in[c + 2]) + kBinomial[1] * (in[c - 1] + in[c + 1]) + kBinomial[2] * in[c];
+          out[x] = kBinomial[0] * (tmp[c - 2] + tmp[c + 2]) + kBinomial[1] * (tmp[c - 1] + tmp[c + 1]) + kBinomial[2] * tmp[c];
         } else {
           float acc = 0;
-          for (int k = 0; k < 5; ++k) acc += kBinomial[static_cast<std::size_t>(k)] * in[reflect101(c + k - 2, sw)];
+          for (int k = 0; k < 5; ++k) acc += kBinomial[static_cast<std::size_t>(k)] * tmp[reflect101(c + k - 2, sw)];
           out[x] = acc;
         }
       }
-    }
-    float* dst = data_[d].data();
-    for (int y = 0; y < dh; ++y) {
-      const float* rows[5];
-      for (int k = 0; k < 5; ++k)
-        rows[k] = scratch_.data() + static_cast<std::size_t>(reflect101(2 * y + k - 2, sh)) * static_cast<std::size_t>(dw);
-      float* out = dst + static_cast<std::size_t>(y) * static_cast<std::size_t>(dw);
-      for (int x = 0; x < dw; ++x)
-        out[x] = kBinomial[0] * (rows[0][x] + rows[4][x]) + kBinomial[1] * (rows[1][x] + rows[3][x]) + kBinomial[2] * rows[2][x];
     }
   }
 }

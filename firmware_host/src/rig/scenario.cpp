@@ -56,10 +56,10 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed) {
     Scenario s = paper_line(name, "door", seed);
     s.defects = {{1, 0.12, -0.12}, {2, -0.18, -0.22}, {3, 0.38, -0.25}};  // three dings about 30 cm apart
     if (name == "occlusion-person")
-      s.people = {{seconds(8), seconds(15), Eigen::Vector3d(-1.4, -0.1, 2.2), Eigen::Vector3d(1.0, -0.1, 2.2)}};
+      s.people = {{seconds(1), seconds(6), Eigen::Vector3d(-1.4, -0.1, 2.2), Eigen::Vector3d(1.0, -0.1, 2.2)}};  // while the dings are marked
     if (name == "frame-drops") {
       s.drop_ratio = 0.10;
-      s.drop_burst_start = 300;
+      s.drop_burst_start = 45;  // half a second lost 1.5 s in, while the arm approaches
       s.drop_burst_length = 15;
     }
     if (name == "paper-curved") {

@@ -63,7 +63,7 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed) {
       s.drop_burst_length = 15;
     }
     if (name == "paper-curved") {
-      s.path.curve_start_m = 0.10;
+      s.path.curve_start_m = 0.02;  // turning while the dings are marked
       s.path.curvature = 0.35;  // turns up to about 8 degrees about the vertical axis
     }
     return s;

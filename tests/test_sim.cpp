@@ -3,6 +3,10 @@
 // gives the same command log and report byte for byte; a bad inspection record is
 // rejected with its line and field; a record whose MFs do not match the panel stops the
 // panel with the PLC told and nothing sprayed. Figures are asserted from report.json.
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
 #include <catch2/catch.hpp>
 #include <array>
 #include <filesystem>
@@ -14,6 +18,9 @@
 #include "markcell/host/config.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "alloc_guard.hpp"
+#include "markcell/vision/frame_source.hpp"
+#include "markcell/vision/recording.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -34,18 +41,30 @@ double json_number(const std::string& json, const std::string& section, const st
 }
 
 
-// One short scenario for the whole file: 3 s of the paper's door at 10 frames a second.
+// One short scenario for the whole file: 3 s of the paper's door at 10 frames a second,
+// generated once per build of markcell (CTest runs each case in its own process: they
+// share it under a file lock, and a newer markcell regenerates it).
 const std::string& sim_dir() {
-  static test::TempDir dir;
-  static const std::string out = (dir.path() / "sim").string();
+  static const std::string out = (std::filesystem::path(kMarkcell).parent_path() / "test-sim-paper-door").string();
   static bool done = false;
-  if (!done) {
+  if (done) return out;
+  const int lock = ::open((out + ".lock").c_str(), O_CREAT | O_RDWR, 0644);
+  REQUIRE(lock >= 0);
+  REQUIRE(::flock(lock, LOCK_EX) == 0);
+  const std::filesystem::path report = std::filesystem::path(out) / "report.json";
+  if (!std::filesystem::exists(report) ||
+      std::filesystem::last_write_time(report) < std::filesystem::last_write_time(kMarkcell)) {
     const auto r = run_command("cd " + source_path("") + " && " + kMarkcell +
                                " sim paper-door --seconds 3 --fps 10 --one-predictor -q --out " + out);
     INFO(r.output);
+    ::flock(lock, LOCK_UN);
+    ::close(lock);
     REQUIRE(r.exit_code == 0);
-    done = true;
+  } else {
+    ::flock(lock, LOCK_UN);
+    ::close(lock);
   }
+  done = true;
   return out;
 }
 }  // namespace
@@ -186,4 +205,42 @@ TEST_CASE("a record that does not match the panel: inter-calibration rejected, n
   CHECK(json_number(json, "defects", "skipped") == 3);
   CHECK(json.find("inter-calibration failed or above its limit") != std::string::npos);
   CHECK(read_file(out + "/commands.log").find("valve open") == std::string::npos);
+}
+
+TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC) allocates nothing once started") {
+  // The short recording's frames decoded into memory first: the measured part must not
+  // decode images (the recording's loader is a device twin that allocates).
+  const auto rec = vision::Recording::open(sim_dir() + "/recording");
+  std::vector<vision::MemoryFrameSource::Pair> pairs;
+  for (std::size_t i = 0; i < rec.size(); ++i) {
+    auto f = rec.read(i);
+    REQUIRE_FALSE(f.dropped);
+    pairs.push_back({f.seq, f.time - rec.entry(0).time, f.left, f.right});
+  }
+  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  cfg.watchdog.systemd = false;
+  cfg.executive.lock_memory = false;
+  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  host::Cell cell(cfg, host::ClockKind::kSimulated);
+  cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(std::move(pairs), cfg.cameras.latency));
+  const auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
+  cell.start();
+  REQUIRE(cell.marking()->offer_job(job));
+  cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), true);
+  // The search, the inter-calibration and the planning happen in the first frames.
+  REQUIRE(cell.sim_clock()->run_until(millis(400)) == control::SimClock::RunResult::kReached);
+  REQUIRE(cell.marking()->state() == control::MarkingState::kApproach);
+  std::size_t allocations = 0;
+  {
+    test::AllocationGuard guard;
+    REQUIRE(cell.sim_clock()->run_until(millis(3000)) == control::SimClock::RunResult::kReached);
+    allocations = guard.allocations();
+  }
+  const auto& result = cell.marking()->current();
+  int sprayed = 0;
+  for (int i = 0; i < result.defect_count; ++i) sprayed += result.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
+  CHECK(sprayed == 3);
+  CHECK(cell.sim_spray_count() == 3);
+  CHECK(allocations == 0);
+  cell.shutdown(control::FaultCode::kShutdown, "test", "done");
 }

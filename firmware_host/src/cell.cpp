@@ -270,6 +270,12 @@ void Cell::enable_command_log(std::size_t capacity) {
       sim_world_.get());
 }
 
+void Cell::use_frame_source(std::unique_ptr<vision::FrameSource> source) {
+  if (!vision_ || started_) throw std::logic_error("a frame source needs the vision task and must be set before start()");
+  frame_source_ = std::move(source);
+  vision_->source = frame_source_.get();
+}
+
 std::string Cell::command_log_text() const {
   std::string out;
   if (!sim_world_) return out;

@@ -95,4 +95,21 @@ FrameResult RecordingFrameSource::next(Nanos now, StereoFrameRef& out) noexcept 
   return FrameResult::kFrame;
 }
 
+FrameResult MemoryFrameSource::next(Nanos now, StereoFrameRef& out) noexcept {
+  std::size_t target = next_;
+  while (target < pairs_.size() && epoch_ + pairs_[target].time + latency_ <= now) ++target;
+  if (target == next_) return next_ >= pairs_.size() ? FrameResult::kEnd : FrameResult::kNone;
+  skipped_ += target - next_ - 1;
+  const Pair& p = pairs_[target - 1];
+  next_ = target;
+  out.seq = p.seq;
+  out.time = epoch_ + p.time;
+  out.index = target - 1;
+  out.left = &p.left;
+  out.right = &p.right;
+  out.dropped = false;
+  out.problem = {};
+  return FrameResult::kFrame;
+}
+
 }  // namespace markcell::vision

@@ -78,6 +78,8 @@ class Cell {
   // Storage for `capacity` entries is taken here, before start(); a full log counts
   // what it could not keep. Simulated arm only.
   void enable_command_log(std::size_t capacity);
+  // Replaces the configured frame source (before start()): tests, benchmarks.
+  void use_frame_source(std::unique_ptr<vision::FrameSource> source);
   std::string command_log_text() const;
   // The marking sequence and the vision task (null when not in the task table).
   control::MarkingSequence* marking() { return marking_.get(); }

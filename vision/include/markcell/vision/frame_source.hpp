@@ -82,4 +82,27 @@ class RecordingFrameSource final : public FrameSource {
   std::thread thread_;
 };
 
+// Stereo pairs held in memory, delivered like a recording's (frame i at epoch + time_i +
+// latency): for tests and benchmarks that must not decode images while they measure.
+class MemoryFrameSource final : public FrameSource {
+ public:
+  struct Pair {
+    std::uint64_t seq = 0;
+    Nanos time = 0;  // from the first pair's capture
+    cv::Mat left, right;
+  };
+  MemoryFrameSource(std::vector<Pair> pairs, Nanos latency) : pairs_(std::move(pairs)), latency_(latency) {}
+  void start(Nanos epoch) override { epoch_ = epoch; }
+  void stop() noexcept override {}
+  FrameResult next(Nanos now, StereoFrameRef& out) noexcept override;
+  std::uint64_t skipped() const override { return skipped_; }
+
+ private:
+  std::vector<Pair> pairs_;
+  Nanos latency_;
+  Nanos epoch_ = 0;
+  std::size_t next_ = 0;
+  std::uint64_t skipped_ = 0;
+};
+
 }  // namespace markcell::vision

@@ -69,7 +69,7 @@ bool within(const Eigen::Vector3d& e, double lateral, double depth) {
 }
 }  // namespace
 
-TEST_CASE("stereo rig: undistortion as cv::undistortPoints, epipolar geometry and triangulation closed-form") {
+TEST_CASE("stereo rig: undistortion and rectification as OpenCV's, epipolar geometry and triangulation closed-form") {
   const StereoCalibration c = distorted_rig();
   const StereoRig rig(c);
   std::mt19937 rng(11);
@@ -90,6 +90,22 @@ TEST_CASE("stereo rig: undistortion as cv::undistortPoints, epipolar geometry an
     CHECK(rig.epipolar_distance(u, rig.undistort(Camera::kRight, r)) < 1e-6);
     CHECK((rig.undistort(Camera::kRight, r) - hr.hnormalized()).norm() < 1e-6);
     CHECK((rig.triangulate_observed(l, r) - p).norm() < 1e-6);
+  }
+  // Rectified: both views of a point on one row, as cv::undistortPoints with R1/P1 has it.
+  for (int i = 0; i < 20; ++i) {
+    const Eigen::Vector3d p(xy(rng) - 0.2, xy(rng), z(rng));
+    const Eigen::Vector2d l = rig.rectify(Camera::kLeft, rig.project(Camera::kLeft, p));
+    const Eigen::Vector2d r = rig.rectify(Camera::kRight, rig.project(Camera::kRight, p));
+    CHECK(std::abs(l.y() - r.y()) < 1e-6);
+    cv::Mat K, R1, P1;
+    cv::eigen2cv(c.left.K, K);
+    cv::eigen2cv(rig.R_rect(Camera::kLeft), R1);
+    cv::eigen2cv(Eigen::Matrix<double, 3, 4>(rig.P_rect(Camera::kLeft)), P1);
+    const Eigen::Vector2d obs = rig.project(Camera::kLeft, p);
+    std::vector<cv::Point2d> in{{obs.x(), obs.y()}}, out;
+    cv::undistortPoints(in, out, K, c.left.distortion, R1, P1);
+    CHECK(std::abs(l.x() - out[0].x) < 1e-6);
+    CHECK(std::abs(l.y() - out[0].y) < 1e-6);
   }
   // A point one pixel off its epipolar line in the right view is one pixel away from it.
   const Eigen::Vector3d p(-0.1, 0.05, 3.0);

@@ -2,6 +2,9 @@
 
 #include <cmath>
 
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/eigen.hpp>
+
 #include "markcell/common/check.hpp"
 
 namespace markcell::vision {
@@ -48,6 +51,26 @@ StereoRig::StereoRig(const StereoCalibration& calibration) : calibration_(calibr
   // x_R^T K_R^-T [t]x R K_L^-1 x_L = 0 with p_R = R p_L + t.
   const Eigen::Matrix3d E = skew(calibration.X_CamR_CamL.translation()) * calibration.X_CamR_CamL.linear();
   F_ = calibration.right.K.inverse().transpose() * E * calibration.left.K.inverse();
+  // OpenCV's convention: camera 1 = left, R and T map camera-1 points into camera 2.
+  cv::Mat K1, K2, R, T, R1, R2, P1, P2, Q;
+  cv::eigen2cv(calibration.left.K, K1);
+  cv::eigen2cv(calibration.right.K, K2);
+  cv::eigen2cv(Eigen::Matrix3d(calibration.X_CamR_CamL.linear()), R);
+  cv::eigen2cv(Eigen::Vector3d(calibration.X_CamR_CamL.translation()), T);
+  const cv::Mat D1 = calibration.left.distortion.empty() ? cv::Mat::zeros(1, 5, CV_64F) : calibration.left.distortion;
+  const cv::Mat D2 = calibration.right.distortion.empty() ? cv::Mat::zeros(1, 5, CV_64F) : calibration.right.distortion;
+  cv::stereoRectify(K1, D1, K2, D2, cv::Size(width(), height()), R, T, R1, R2, P1, P2, Q, cv::CALIB_ZERO_DISPARITY, 0);
+  cv::cv2eigen(R1, R1_);
+  cv::cv2eigen(R2, R2_);
+  cv::cv2eigen(P1, P1_);
+  cv::cv2eigen(P2, P2_);
+}
+
+Eigen::Vector2d StereoRig::rectify(Camera c, const Eigen::Vector2d& px) const {
+  const Eigen::Matrix3d& K = model(c).K;
+  const Eigen::Vector2d u = undistort(c, px);
+  const Eigen::Vector3d ray = R_rect(c) * Eigen::Vector3d((u.x() - K(0, 2)) / K(0, 0), (u.y() - K(1, 2)) / K(1, 1), 1.0);
+  return (P_rect(c).leftCols<3>() * ray).hnormalized();
 }
 
 Eigen::Vector2d StereoRig::undistort(Camera c, const Eigen::Vector2d& px) const {

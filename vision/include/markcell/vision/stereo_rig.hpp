@@ -26,6 +26,12 @@ class StereoRig {
   int width() const { return calibration_.left.width; }
   int height() const { return calibration_.left.height; }
 
+  // Rectification (cv::stereoRectify, derived at start-up): rotations that make both
+  // image planes coplanar with horizontal epipolar lines, and the new projections. A
+  // point's rectified pixel in either view has the same row.
+  const Eigen::Matrix3d& R_rect(Camera c) const { return c == Camera::kLeft ? R1_ : R2_; }
+  const ProjectionMatrix& P_rect(Camera c) const { return c == Camera::kLeft ? P1_ : P2_; }
+  Eigen::Vector2d rectify(Camera c, const Eigen::Vector2d& observed_px) const;
   // Undistorted pixel of a distorted (observed) one: the iterative inversion OpenCV's
   // undistortPoints uses, with a fixed number of rounds.
   Eigen::Vector2d undistort(Camera c, const Eigen::Vector2d& px) const;
@@ -43,6 +49,8 @@ class StereoRig {
   std::array<double, 5> dist_L_{}, dist_R_{};  // k1 k2 p1 p2 k3
   ProjectionMatrix P_L_, P_R_;
   Eigen::Matrix3d F_;
+  Eigen::Matrix3d R1_, R2_;
+  ProjectionMatrix P1_, P2_;
   Eigen::Isometry3d X_CamL_CamR_;
 };
 

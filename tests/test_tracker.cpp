@@ -52,6 +52,18 @@ struct Sequence {
   }
 };
 
+// A sequence with the door's panel-type file (as select-mfs makes it) and a tracker.
+struct Tracked : Sequence {
+  PanelTypeModel model;
+  StereoRig rig;
+  PanelTracker tracker;
+  explicit Tracked(const std::string& name)
+      : Sequence(name),
+        model(host::rig::reference_panel_type(scenario, calibration, render)),
+        rig(calibration),
+        tracker(rig, model, TrackerParams{}) {}
+};
+
 // Largest error, per CamR axis, of where the estimated motion puts the panel's defects
 // (the points that get marked) against where they are. Depth (z) is the stereo pair's
 // weak axis: at 3.1 m with a 44.5 cm baseline, 0.1 px of disparity is 1.9 mm.
@@ -194,10 +206,9 @@ TEST_CASE("panel type files: round trip, and errors that name the file and key")
 }
 
 TEST_CASE("the tracker finds the door's MFs, follows the panel within a millimetre across the view, without allocating") {
-  const Sequence s("paper-door");
-  const PanelTypeModel m = host::rig::reference_panel_type(s.scenario, s.calibration, s.render);
-  const StereoRig rig(s.calibration);
-  PanelTracker tracker(rig, m, TrackerParams{});
+  Tracked s("paper-door");
+  const PanelTypeModel& m = s.model;
+  PanelTracker& tracker = s.tracker;
   cv::Mat l, r;
   s.frame(0, 100, {}, l, r);
   const PoseEstimate& first = tracker.process(0, 0, l, r);
@@ -231,10 +242,9 @@ TEST_CASE("the tracker finds the door's MFs, follows the panel within a millimet
 }
 
 TEST_CASE("an occluded MF drops out without disturbing the pose and comes back when the view clears") {
-  const Sequence s("paper-door");
-  const PanelTypeModel m = host::rig::reference_panel_type(s.scenario, s.calibration, s.render);
-  const StereoRig rig(s.calibration);
-  PanelTracker tracker(rig, m, TrackerParams{});
+  Tracked s("paper-door");
+  const PanelTypeModel& m = s.model;
+  PanelTracker& tracker = s.tracker;
   cv::Mat l, r;
   s.frame(0, 200, {}, l, r);
   REQUIRE(tracker.process(0, 0, l, r).status == TrackStatus::kReinitialised);
@@ -260,10 +270,8 @@ TEST_CASE("an occluded MF drops out without disturbing the pose and comes back w
 }
 
 TEST_CASE("a view without the panel is reported as searching, with the reason") {
-  const Sequence s("paper-door");
-  const PanelTypeModel m = host::rig::reference_panel_type(s.scenario, s.calibration, s.render);
-  const StereoRig rig(s.calibration);
-  PanelTracker tracker(rig, m, TrackerParams{});
+  Tracked s("paper-door");
+  PanelTracker& tracker = s.tracker;
   cv::Mat blank(480, 640, CV_8UC1, cv::Scalar(40));
   cv::randn(blank, 40, 1.5);
   const PoseEstimate& e = tracker.process(0, 0, blank, blank);

@@ -12,7 +12,7 @@ const std::string kMarkcell = MARKCELL_BINARY;
 }
 
 TEST_CASE("every subcommand has --help") {
-  for (const char* sub : {"check-config", "run", "bench", "bench loop"}) {
+  for (const char* sub : {"check-config", "run", "sim", "replay", "select-mfs", "calibrate-stereo", "bench", "bench loop", "bench vision"}) {
     const auto r = run_command(kMarkcell + " " + sub + " --help");
     INFO(sub << ": " << r.output);
     CHECK(r.exit_code == 0);
@@ -68,4 +68,16 @@ TEST_CASE("run stops cleanly on SIGTERM and on SIGINT, outputs safe, report prin
     CHECK(r.output.find("timing report (real clock)") != std::string::npos);
     CHECK(r.output.find(std::string("shutdown       markcell         SIG") + sig) != std::string::npos);
   }
+}
+
+TEST_CASE("sim and replay: an unknown scenario and a folder without a recording are errors that say what to fix") {
+  markcell::test::TempDir dir;
+  const auto unknown = run_command("cd " + source_path("") + " && " + kMarkcell + " sim paper-dor --out " + dir.path().string());
+  CHECK(unknown.exit_code == 2);
+  CHECK(unknown.output.find("unknown scenario 'paper-dor' (known: paper-door, paper-fender") != std::string::npos);
+  const auto empty = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + dir.path().string() +
+                                 " --out " + (dir.path() / "out").string());
+  INFO(empty.output);
+  CHECK(empty.exit_code == 1);
+  CHECK(empty.output.find(dir.path().string() + "/recording.yaml") != std::string::npos);
 }

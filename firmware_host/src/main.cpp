@@ -175,7 +175,13 @@ int replay_command(const CellConfig& config, const std::string& recording, const
 
 int sim_command(const CellConfig& config, const std::string& scenario_name, std::uint64_t seed, double seconds_limit,
                 double fps, const std::string& scanner_file, const std::string& out, const rig::ReplayOptions& options) {
-  const rig::Scenario scenario = rig::make_scenario(scenario_name, seed);
+  rig::Scenario scenario;
+  try {
+    scenario = rig::make_scenario(scenario_name, seed);
+  } catch (const std::invalid_argument& e) {
+    std::cerr << "markcell sim: " << e.what() << "\n";
+    return kExitConfig;
+  }
   const std::filesystem::path recording = std::filesystem::path(out) / "recording";
   // The folder is the rig's own output: a previous run's recording is replaced.
   if (std::filesystem::exists(recording / "recording.yaml")) std::filesystem::remove_all(recording);

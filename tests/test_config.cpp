@@ -229,3 +229,12 @@ TEST_CASE_METHOD(Fixture, "every error is reported, not only the first") {
   CHECK(e[3].path == "panel_types.door.colour");
   REQUIRE_THROWS_AS(load_config(file(), task_catalog()), ConfigInvalid);
 }
+
+TEST_CASE_METHOD(Fixture, "the results file: resolved against the config's folder, its folder must exist") {
+  const auto ok = load_config_text(replace(kValid, "name: test-cell", "name: test-cell\n  results_file: results.jsonl"), file(),
+                                   task_catalog());
+  CHECK(ok.results_file == (dir.path() / "results.jsonl").string());
+  const auto m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  results_file: nowhere/results.jsonl")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0].find("cell.results_file: folder '" + (dir.path() / "nowhere").string() + "' does not exist") != std::string::npos);
+}

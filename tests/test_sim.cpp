@@ -18,6 +18,7 @@
 #include "markcell/host/config.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/results_file.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
@@ -243,4 +244,67 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   CHECK(cell.sim_spray_count() == 3);
   CHECK(allocations == 0);
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
+}
+
+TEST_CASE("a panel's result is written and synced before the PLC hears done; without it the PLC gets fault") {
+  const auto rec = vision::Recording::open(sim_dir() + "/recording");
+  auto pairs = [&] {
+    std::vector<vision::MemoryFrameSource::Pair> p;
+    for (std::size_t i = 0; i < rec.size(); ++i) {
+      auto f = rec.read(i);
+      p.push_back({f.seq, f.time - rec.entry(0).time, f.left, f.right});
+    }
+    return p;
+  };
+  test::TempDir dir;
+  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  cfg.watchdog.systemd = false;
+  cfg.executive.lock_memory = false;
+  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  cfg.results_file = (dir.path() / "results.jsonl").string();
+  const auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
+  for (const bool write : {true, false}) {
+    CAPTURE(write);
+    host::Cell cell(cfg, host::ClockKind::kSimulated);
+    cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(pairs(), cfg.cameras.latency));
+    cell.start();
+    REQUIRE(cell.marking()->offer_job(job));
+    cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), true);
+    control::SimClock& clock = *cell.sim_clock();
+    Nanos t = 0;
+    while (cell.marking()->panels_completed() == 0 && t < seconds(10)) clock.run_until(t += millis(10));
+    REQUIRE(cell.marking()->panels_completed() == 1);
+    bool done = true, fault = true;
+    auto lines = [&] {
+      cell.gpio().get(cell.gpio_line(host::LineRole::kPlcDone), done);
+      cell.gpio().get(cell.gpio_line(host::LineRole::kPlcFault), fault);
+    };
+    lines();
+    CHECK(cell.marking()->state() == control::MarkingState::kReporting);
+    CHECK_FALSE(done);  // nothing on disk yet: the PLC waits
+    CHECK_FALSE(fault);
+    cell.marking()->results().update();
+    const control::PanelResult r = cell.marking()->results().read();
+    if (write) {
+      host::ResultsFile file(cfg.results_file);
+      file.append(host::ResultsFile::to_json(r, cfg.name));
+      cell.marking()->acknowledge_result(r.serial);
+      clock.run_until(t + millis(10));
+      lines();
+      CHECK(done);
+      CHECK_FALSE(fault);
+      const std::string text = read_file(cfg.results_file);
+      CHECK(text.find("\"panel_id\": \"paper-door-1\"") != std::string::npos);
+      CHECK(text.find("\"fault\": false") != std::string::npos);
+      CHECK(text.find("{\"id\": 3, \"sprayed\": true") != std::string::npos);
+      CHECK(text.back() == '\n');
+    } else {
+      clock.run_until(t + seconds(3));  // past the 2 s the sequence waits for the result
+      lines();
+      CHECK_FALSE(done);
+      CHECK(fault);
+      CHECK(cell.marking()->current().reason.view() == "results file not written in time");
+    }
+    cell.shutdown(control::FaultCode::kShutdown, "test", "done");
+  }
 }

@@ -26,6 +26,7 @@ std::string_view to_string(MarkingState s) {
     case MarkingState::kApproach: return "approach";
     case MarkingState::kSpraying: return "spraying";
     case MarkingState::kHome: return "home";
+    case MarkingState::kReporting: return "reporting";
     case MarkingState::kWaitRelease: return "wait-release";
   }
   return "?";
@@ -81,10 +82,13 @@ Eigen::Isometry3d MarkingSequence::nozzle_in_base(const Eigen::Isometry3d& X_Cam
 TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
   const Nanos now = ctx.now();
   if (estimates_.update()) on_estimate(estimates_.read(), now);
-  if (ctx.safe_stopped()) {
-    // The safe stop has closed the valve and held the arm; the panel ends here.
-    if (state_ != MarkingState::kIdle && state_ != MarkingState::kWaitRelease)
+  if (ctx.safe_stopped() && state_ != MarkingState::kReporting) {
+    // The safe stop has closed the valve and held the arm; the panel ends here, and its
+    // result (a fault, with what was and was not sprayed) is recorded all the same.
+    if (state_ != MarkingState::kIdle && state_ != MarkingState::kWaitRelease) {
       fail_panel(now, "safe stop during the marking sequence", SkipReason::kStopped);
+      finish_panel(now);
+    }
     return TaskResult::kOk;
   }
   const PlcInputs& plc = plc_io_.inputs();
@@ -129,6 +133,15 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
       }
       break;
     }
+    case MarkingState::kReporting:
+      if (acked_.load(std::memory_order_acquire) >= result_.serial) {
+        report_to_plc();
+      } else if (now > deadline_) {
+        result_.fault = true;
+        result_.reason.assign("results file not written in time");
+        report_to_plc();
+      }
+      break;
     case MarkingState::kWaitRelease:
       if (!plc.panel_present) {
         set_plc(plc_.done, false);
@@ -303,7 +316,7 @@ void MarkingSequence::fail_panel(Nanos now, std::string_view reason, SkipReason 
   }
   defect_ = -1;
   next_ = job_.defect_count;
-  if (state_ == MarkingState::kIdle || state_ == MarkingState::kWaitRelease) return;
+  if (state_ == MarkingState::kIdle || state_ == MarkingState::kWaitRelease || state_ == MarkingState::kReporting) return;
   state_ = MarkingState::kHome;
   home_sent_ = false;
   deadline_ = now + params_.home_timeout;
@@ -311,11 +324,20 @@ void MarkingSequence::fail_panel(Nanos now, std::string_view reason, SkipReason 
 
 void MarkingSequence::finish_panel(Nanos now) {
   result_.finished = now;
+  results_.write(result_);
+  completed_.fetch_add(1, std::memory_order_acq_rel);
+  if (!params_.require_result_ack) {
+    report_to_plc();
+    return;
+  }
+  deadline_ = now + params_.result_ack_timeout;
+  state_ = MarkingState::kReporting;  // the PLC hears nothing before the result is on disk
+}
+
+void MarkingSequence::report_to_plc() {
   set_plc(plc_.busy, false);
   if (result_.fault) set_plc(plc_.fault, true);
   else set_plc(plc_.done, true);
-  results_.write(result_);
-  completed_.fetch_add(1, std::memory_order_acq_rel);
   state_ = MarkingState::kWaitRelease;
 }
 

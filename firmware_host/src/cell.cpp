@@ -226,6 +226,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     mp.defect_timeout = config.marking.defect_timeout;
     mp.acquire_timeout = config.marking.acquire_timeout;
     mp.home_timeout = config.marking.home_timeout;
+    mp.require_result_ack = !config.results_file.empty();
     mp.line_direction_CamR = Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1],
                                              config.marking.line_direction[2]).normalized();
     mp.intercalibration.max_abs_error = config.marking.intercalibration_limit_mm / 1000.0;

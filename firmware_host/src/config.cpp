@@ -669,8 +669,20 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
                       "vision", "marking"}))
     throw ConfigInvalid(errors);
 
-  if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name"}))
+  if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name", "results_file"})) {
     r.text(*cell, "cell", "name", cfg.name);
+    std::string results;
+    r.text(*cell, "cell", "results_file", results, false, 4096);
+    if (!results.empty()) {
+      std::filesystem::path p(results);
+      if (p.is_relative()) p = std::filesystem::path(path).parent_path() / p;
+      p = p.lexically_normal();
+      std::error_code ec;
+      if (!std::filesystem::is_directory(p.parent_path(), ec))
+        r.error((*cell)["results_file"], "cell.results_file", "folder '" + p.parent_path().string() + "' does not exist");
+      cfg.results_file = p.string();
+    }
+  }
   std::vector<YAML::Mark> task_marks;
   if (const auto e = r.child(root, "", "executive", true)) read_executive(r, *e, known_tasks, cfg, task_marks);
   if (const auto w = r.child(root, "", "watchdog", true)) read_watchdog(r, *w, cfg.watchdog);

@@ -14,6 +14,7 @@
 #include "markcell/host/bench.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/host/results_file.hpp"
 #include "markcell/host/rig/replay.hpp"
 #include "markcell/host/rig/scenario.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -87,17 +88,53 @@ int run_command(const std::string& file, const std::string& clock_name, double s
   if (seconds > 0) std::fprintf(stderr, " for %g s", seconds);
   std::fprintf(stderr, "\n");
 
+  // Each finished panel: its result appended and synced, then acknowledged so that the
+  // marking sequence tells the PLC; one journald line per panel.
+  std::unique_ptr<ResultsFile> results;
+  std::uint64_t written = 0;
+  if (!config.results_file.empty() && cell.marking() != nullptr) results = std::make_unique<ResultsFile>(config.results_file);
+  const auto collect = [&] {
+    control::MarkingSequence* m = cell.marking();
+    if (m == nullptr || m->panels_completed() == written) return;
+    m->results().update();
+    const control::PanelResult& r = m->results().read();
+    if (results) {
+      try {
+        results->append(ResultsFile::to_json(r, config.name));
+        m->acknowledge_result(r.serial);
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "<3>markcell: %s (the PLC gets fault)\n", e.what());
+      }
+    }
+    int sprayed = 0, skipped = 0;
+    for (int i = 0; i < r.defect_count; ++i) {
+      sprayed += r.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
+      skipped += r.defects[static_cast<std::size_t>(i)].skipped != control::SkipReason::kNone ? 1 : 0;
+    }
+    std::fprintf(stderr, "%smarkcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"\n", r.fault ? "<3>" : "<6>",
+                 r.panel_id.c_str(), r.fault ? "fault" : "done", sprayed, skipped, r.reason.c_str());
+    written = r.serial;
+  };
+
   std::string stop_reason = "duration elapsed";
   if (simulated) {
     const Nanos end = cell.sim_clock()->global_now() + static_cast<Nanos>(seconds * 1e9);
-    if (cell.sim_clock()->run_until(end) == control::SimClock::RunResult::kWedged) stop_reason = "simulation wedged";
+    for (Nanos t = cell.sim_clock()->global_now(); t < end;) {
+      t = std::min(end, t + millis(100));
+      if (cell.sim_clock()->run_until(t) == control::SimClock::RunResult::kWedged) {
+        stop_reason = "simulation wedged";
+        break;
+      }
+      collect();
+    }
   } else {
     const Nanos end = seconds > 0 ? monotonic_now() + static_cast<Nanos>(seconds * 1e9) : 0;
     for (;;) {
       // Bounded wait: wakes at once on a signal, at least every second otherwise.
+      collect();
       Nanos wait = seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
       if (wait <= 0) break;
-      if (wait > kNanosPerSecond) wait = kNanosPerSecond;
+      if (wait > millis(50)) wait = millis(50);  // results are written within 50 ms of a panel's end
       const timespec ts = to_timespec(wait);
       const int sig = sigtimedwait(&signals, nullptr, &ts);
       if (sig == SIGTERM || sig == SIGINT) {

@@ -98,13 +98,17 @@ struct MarkingParams {
   Nanos defect_timeout = seconds(6);
   Nanos acquire_timeout = seconds(10);
   Nanos home_timeout = seconds(10);
+  // With a results file: the PLC hears done (or fault) only once the panel's result is
+  // written and synced (acknowledge_result); past this, fault.
+  bool require_result_ack = false;
+  Nanos result_ack_timeout = seconds(2);
   Eigen::Vector3d line_direction_CamR = Eigen::Vector3d::UnitX();  // downstream defects go first
   IntercalibrationLimits intercalibration;
   PredictorParams predictor;
   int min_defect_points = 6;
 };
 
-enum class MarkingState : std::uint8_t { kIdle, kAcquire, kApproach, kSpraying, kHome, kWaitRelease };
+enum class MarkingState : std::uint8_t { kIdle, kAcquire, kApproach, kSpraying, kHome, kReporting, kWaitRelease };
 std::string_view to_string(MarkingState s);
 
 // Fig. 8 of the paper: at each new pose, where the predictor had put the current defect
@@ -142,6 +146,8 @@ class MarkingSequence {
   // Completed panels, newest last (wait-free for a reader on another lane).
   TripleBuffer<PanelResult>& results() { return results_; }
   std::uint64_t panels_completed() const { return completed_.load(std::memory_order_acquire); }
+  // From the results writer (another thread): result `serial` is on disk.
+  void acknowledge_result(std::uint64_t serial) { acked_.store(serial, std::memory_order_release); }
   // Read after the run (simulated cells, tests).
   const PanelResult& current() const { return result_; }
   std::size_t prediction_samples() const { return std::min(prediction_count_, kPredictionLog); }
@@ -154,6 +160,7 @@ class MarkingSequence {
   void next_defect(Nanos now);
   void approach(Nanos now, const TaskContext& ctx);
   void finish_panel(Nanos now);
+  void report_to_plc();
   void fail_panel(Nanos now, std::string_view reason, SkipReason skip);
   void set_plc(int line, bool value);
   Eigen::Isometry3d nozzle_in_base(const Eigen::Isometry3d& X_CamR_P, int defect) const;
@@ -175,6 +182,7 @@ class MarkingSequence {
   PanelResult result_;
   TripleBuffer<PanelResult> results_;
   std::atomic<std::uint64_t> completed_{0};
+  std::atomic<std::uint64_t> acked_{0};
   std::uint32_t reset_serial_ = 0;
   std::uint32_t serial_at_reset_ = 0;   // tracker serial when the search was asked for
   std::uint32_t latest_serial_ = 0;

@@ -173,6 +173,7 @@ struct CalibrationPaths {
 struct CellConfig {
   std::string file;     // the YAML file it came from
   std::string name;
+  std::string results_file;  // every panel's result appended and synced here (empty: none); absolute
   control::ExecutiveSpec executive;
   WatchdogConfig watchdog;
   SafeStopConfig safe_stop;

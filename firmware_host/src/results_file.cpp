@@ -1,4 +1,5 @@
 #include "markcell/host/results_file.hpp"
+#include "markcell/host/json.hpp"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -12,19 +13,8 @@
 namespace markcell::host {
 
 namespace {
-std::string quote(std::string_view s) {
-  std::string out = "\"";
-  for (const char c : s) {
-    if (c == '"' || c == '\\') out += '\\';
-    if (static_cast<unsigned char>(c) >= 0x20) out += c;
-  }
-  return out + "\"";
-}
-std::string num(double v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.4f", v);
-  return b;
-}
+std::string quote(std::string_view s) { return json_quote(s); }
+std::string num(double v) { return json_number(v, 4); }
 }  // namespace
 
 ResultsFile::ResultsFile(const std::string& path) : path_(path) {

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/json.hpp"
 #include "markcell/host/rig/replay.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -21,23 +22,11 @@ namespace markcell::host::rig {
 
 namespace {
 
-std::string num(double v, int digits = 3) {
-  if (!std::isfinite(v)) return "null";
-  char b[64];
-  std::snprintf(b, sizeof b, "%.*f", digits, v);
-  return b;
-}
+std::string num(double v, int digits = 3) { return json_number(v, digits); }
 std::string vec(const Eigen::Vector3d& v, double scale, int digits = 3) {
   return "[" + num(v.x() * scale, digits) + ", " + num(v.y() * scale, digits) + ", " + num(v.z() * scale, digits) + "]";
 }
-std::string quote(std::string_view s) {
-  std::string out = "\"";
-  for (const char c : s) {
-    if (c == '"' || c == '\\') out += '\\';
-    if (static_cast<unsigned char>(c) >= 0x20) out += c;
-  }
-  return out + "\"";
-}
+std::string quote(std::string_view s) { return json_quote(s); }
 
 struct Counts {
   int planned = 0, marked = 0, skipped = 0, sprayed = 0;

@@ -174,16 +174,29 @@ LkResult track_point(const Pyramid& from, const Pyramid& to, const Eigen::Vector
   return result;
 }
 
+namespace {
+// The corner refinement's Gaussian window weights for every radius, computed once when
+// the program loads rather than on every call of the real-time path.
+using CornerWeights = std::array<float, (2 * kMaxLkRadius + 1) * (2 * kMaxLkRadius + 1)>;
+const std::array<CornerWeights, kMaxLkRadius + 1> kCornerWeights = [] {
+  std::array<CornerWeights, kMaxLkRadius + 1> all{};
+  for (int radius = 1; radius <= kMaxLkRadius; ++radius) {
+    const int n = 2 * radius + 1;
+    const double sigma2 = 0.5 * radius * radius;
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i)
+        all[static_cast<std::size_t>(radius)][static_cast<std::size_t>(j * n + i)] =
+            static_cast<float>(std::exp(-((i - radius) * (i - radius) + (j - radius) * (j - radius)) / (2 * sigma2)));
+  }
+  return all;
+}();
+}  // namespace
+
 bool refine_corner(const Pyramid& image, Eigen::Vector2d& p, int radius, int max_iterations, double epsilon) {
   radius = std::clamp(radius, 1, kMaxLkRadius);
   const int n = 2 * radius + 1, np = n + 2;
-  std::array<float, (2 * kMaxLkRadius + 1) * (2 * kMaxLkRadius + 1)> weight{};
+  const auto& weight = kCornerWeights[static_cast<std::size_t>(radius)];
   std::array<float, (2 * kMaxLkRadius + 3) * (2 * kMaxLkRadius + 3)> P{};
-  const double sigma2 = 0.5 * radius * radius;
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i)
-      weight[static_cast<std::size_t>(j * n + i)] =
-          static_cast<float>(std::exp(-((i - radius) * (i - radius) + (j - radius) * (j - radius)) / (2 * sigma2)));
   Eigen::Vector2d q = p;
   for (int it = 0; it < max_iterations; ++it) {
     if (!image.inside(0, q.x(), q.y(), radius + 2)) return false;

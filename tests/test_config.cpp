@@ -238,3 +238,26 @@ TEST_CASE_METHOD(Fixture, "the results file: resolved against the config's folde
   REQUIRE(m.size() == 1);
   CHECK(m[0].find("cell.results_file: folder '" + (dir.path() / "nowhere").string() + "' does not exist") != std::string::npos);
 }
+
+TEST_CASE_METHOD(Fixture, "base_calibration: poses and the board's mounting as six numbers, each checked") {
+  const std::string ok_poses =
+      "base_calibration:\n  board: {cols: 7, rows: 5, square_m: 0.04}\n  poses:\n"
+      "    - [0.2, 0.4, 1.0, 0, -90, 0]\n    - [0.1, 0.4, 1.0, 0, -90, 0]\n    - [0.2, 0.3, 1.0, 0, -90, 0]\n"
+      "    - [0.2, 0.4, 0.9, 0, -90, 0]\n    - [0.3, 0.4, 1.0, 0, -90, 0]\n    - [0.2, 0.5, 1.0, 0, -90, 0]\n";
+  const auto cfg = load_config_text(kValid + ok_poses, file(), task_catalog());
+  CHECK(cfg.base_calibration.board_cols == 7);
+  REQUIRE(cfg.base_calibration.poses.size() == 6);
+  CHECK(cfg.base_calibration.poses[3][2] == 0.9);
+  CHECK(cfg.base_calibration.poses[3][4] == -90.0);
+
+  const auto lines = std::count(kValid.begin(), kValid.end(), '\n');
+  const auto bad = messages(check(kValid + replace(ok_poses, "[0.2, 0.4, 0.9, 0, -90, 0]", "[0.2, 0.4, 0.9, 0, -90]")));
+  REQUIRE(bad.size() == 1);
+  CHECK(bad[0] == file() + ":" + std::to_string(lines + 7) +
+                      ":7: base_calibration.poses[3]: expected [x, y, z, rx, ry, rz]: metres within 10, a rotation vector "
+                      "in degrees within 360, got a sequence");
+  const auto few = messages(check(kValid + "base_calibration:\n  poses: [[0, 0, 1, 0, 0, 0]]\n"));
+  REQUIRE(few.size() == 1);
+  CHECK(few[0] == file() + ":" + std::to_string(lines + 2) +
+                      ":10: base_calibration.poses: expected a list of 6 to 200 poses, got a sequence of 1");
+}

@@ -32,23 +32,6 @@ std::string_view to_string(MarkingState s) {
   return "?";
 }
 
-namespace {
-drivers::ToolPose to_tool_pose(const Eigen::Isometry3d& X) {
-  drivers::ToolPose p;
-  const Eigen::AngleAxisd aa(X.linear());
-  const Eigen::Vector3d r = aa.axis() * aa.angle();
-  for (int i = 0; i < 3; ++i) {
-    p.position[static_cast<std::size_t>(i)] = X.translation()(i);
-    p.rotation[static_cast<std::size_t>(i)] = r(i);
-  }
-  return p;
-}
-Eigen::Matrix3d rotation_of(const drivers::ToolPose& p) {
-  const Eigen::Vector3d r(p.rotation[0], p.rotation[1], p.rotation[2]);
-  const double angle = r.norm();
-  return angle < 1e-15 ? Eigen::Matrix3d::Identity() : Eigen::AngleAxisd(angle, r / angle).toRotationMatrix();
-}
-}  // namespace
 
 MarkingSequence::MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve,
                                  drivers::GpioLines& lines, const PlcLineMap& plc, const PlcIo& plc_io,
@@ -291,7 +274,7 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
   const drivers::ArmState& s = arm_.state();
   const Eigen::Isometry3d then = nozzle_in_base(predictor_.predict(s.received), defect_);
   const Eigen::Vector3d pos(s.tool.position[0], s.tool.position[1], s.tool.position[2]);
-  const double angle = Eigen::AngleAxisd(rotation_of(s.tool).transpose() * then.linear()).angle();
+  const double angle = Eigen::AngleAxisd(to_isometry(s.tool).linear().transpose() * then.linear()).angle();
   const bool within = (pos - then.translation()).norm() <= params_.settle_position && angle <= params_.settle_angle;
   // (The arm's state carries no mode over CAN: position, orientation and freshness decide.)
   if (!within || !fresh || s.received < r.approach_start) {

@@ -65,4 +65,24 @@ DefectToolPose tool_pose(std::span<const Eigen::Vector3d> points, double standof
   return r;
 }
 
+drivers::ToolPose to_tool_pose(const Eigen::Isometry3d& X) {
+  drivers::ToolPose p;
+  const Eigen::AngleAxisd aa(X.linear());
+  const Eigen::Vector3d r = aa.axis() * aa.angle();
+  for (int i = 0; i < 3; ++i) {
+    p.position[static_cast<std::size_t>(i)] = X.translation()(i);
+    p.rotation[static_cast<std::size_t>(i)] = r(i);
+  }
+  return p;
+}
+
+Eigen::Isometry3d to_isometry(const drivers::ToolPose& p) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  const Eigen::Vector3d r(p.rotation[0], p.rotation[1], p.rotation[2]);
+  const double angle = r.norm();
+  if (angle > 1e-15) X.linear() = Eigen::AngleAxisd(angle, r / angle).toRotationMatrix();
+  X.translation() = Eigen::Vector3d(p.position[0], p.position[1], p.position[2]);
+  return X;
+}
+
 }  // namespace markcell::control

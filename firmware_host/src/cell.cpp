@@ -21,12 +21,41 @@ const std::vector<std::string>& task_catalog() {
   return kTasks;
 }
 
-namespace {
 drivers::CanArmLinkConfig can_link_config(const CanConfig& c) {
   return drivers::CanArmLinkConfig{static_cast<std::uint8_t>(c.node_id), static_cast<std::uint8_t>(c.controller_node_id),
                                    c.heartbeat_period, c.heartbeat_timeout, c.fd};
 }
-}  // namespace
+
+drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm) {
+  drivers::SimArmLimits limits;
+  limits.reach = arm.limits.reach;
+  limits.max_speed = arm.limits.max_tcp_speed;
+  limits.max_accel = arm.limits.max_tcp_accel;
+  limits.home.position = arm.limits.home;
+  return limits;
+}
+
+std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::unique_ptr<drivers::SocketCanBus>& bus_out) {
+  switch (arm.transport) {
+    case ArmTransport::kSimulated:
+      break;
+    case ArmTransport::kCan: {
+      drivers::SocketCanConfig bus;
+      bus.interface = arm.can.interface;
+      bus.fd = arm.can.fd;
+      const auto node = static_cast<std::uint32_t>(arm.can.node_id);
+      bus.filter_ids = {drivers::canopen::kToolPositionId + node, drivers::canopen::kToolRotationId + node,
+                        drivers::canopen::kHeartbeatId + node, drivers::canopen::kToolFdId + node};
+      bus.filter_count = 4;
+      bus_out = std::make_unique<drivers::SocketCanBus>(bus);
+      return std::make_unique<drivers::CanArmLink>(*bus_out, can_link_config(arm.can));
+    }
+    case ArmTransport::kSerial:
+      return std::make_unique<drivers::SerialArmLink>(drivers::SerialArmLinkConfig{
+          arm.serial.device, arm.serial.baud, arm.serial.ack_timeout, arm.serial.retries, arm.can.heartbeat_timeout});
+  }
+  throw std::logic_error("make_arm_link: the simulated arm lives in the cell's simulated world");
+}
 
 control::TaskResult Cell::SimWorld::task(control::TaskContext& ctx, void* self) {
   auto* w = static_cast<SimWorld*>(self);
@@ -142,33 +171,16 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
       sim_world_ = std::make_unique<SimWorld>();
       if (sim_clock_ != nullptr)
         sim_world_->wire.set_time_source([](void* c) { return static_cast<control::SimClock*>(c)->global_now(); }, sim_clock_);
-      drivers::SimArmLimits limits;
-      limits.reach = config.arm.limits.reach;
-      limits.max_speed = config.arm.limits.max_tcp_speed;
-      limits.max_accel = config.arm.limits.max_tcp_accel;
-      limits.home.position = config.arm.limits.home;
+      const drivers::SimArmLimits limits = sim_arm_limits(config.arm);
       sim_world_->arm = std::make_unique<drivers::SimCanArm>(
           sim_world_->wire.b(), static_cast<std::uint8_t>(config.arm.can.node_id), limits, millis(10),
           config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout, config.arm.can.fd);
       arm_link_ = std::make_unique<drivers::CanArmLink>(sim_world_->wire.a(), can_link_config(config.arm.can));
       break;
     }
-    case ArmTransport::kCan: {
-      drivers::SocketCanConfig bus;
-      bus.interface = config.arm.can.interface;
-      bus.fd = config.arm.can.fd;
-      const auto node = static_cast<std::uint32_t>(config.arm.can.node_id);
-      bus.filter_ids = {drivers::canopen::kToolPositionId + node, drivers::canopen::kToolRotationId + node,
-                        drivers::canopen::kHeartbeatId + node, drivers::canopen::kToolFdId + node};
-      bus.filter_count = 4;
-      can_bus_ = std::make_unique<drivers::SocketCanBus>(bus);
-      arm_link_ = std::make_unique<drivers::CanArmLink>(*can_bus_, can_link_config(config.arm.can));
-      break;
-    }
+    case ArmTransport::kCan:
     case ArmTransport::kSerial:
-      arm_link_ = std::make_unique<drivers::SerialArmLink>(drivers::SerialArmLinkConfig{
-          config.arm.serial.device, config.arm.serial.baud, config.arm.serial.ack_timeout, config.arm.serial.retries,
-          config.arm.can.heartbeat_timeout});
+      arm_link_ = make_arm_link(config.arm, can_bus_);
       break;
   }
   arm_supervision_ = std::make_unique<control::ArmSupervision>(*arm_link_, safe_stop_,

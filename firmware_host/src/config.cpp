@@ -621,6 +621,56 @@ void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
   m.home_timeout = static_cast<Nanos>(home * 1e9);
 }
 
+void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationConfig& b) {
+  const std::string P = "base_calibration";
+  if (!r.map(node, P, {"board", "X_Tool_Board", "poses", "max_rms_mm", "max_abs_mm", "move_timeout_s", "settle_ms"})) return;
+  if (const auto board = r.child(node, P, "board", false); board && r.map(*board, P + ".board", {"cols", "rows", "square_m"})) {
+    r.integer(*board, P + ".board", "cols", b.board_cols, 3, 40);
+    r.integer(*board, P + ".board", "rows", b.board_rows, 3, 40);
+    r.number(*board, P + ".board", "square_m", b.square_m, 0.002, 0.5);
+  }
+  // Six numbers: a position in metres and a rotation vector in degrees.
+  const auto six = [&](const YAML::Node& n, const std::string& path, PoseSix& out) {
+    const char* expected = "expected [x, y, z, rx, ry, rz]: metres within 10, a rotation vector in degrees within 360";
+    if (!n.IsSequence() || n.size() != 6) {
+      r.error(n, path, std::string(expected) + ", got " + node_kind(n));
+      return false;
+    }
+    PoseSix v{};
+    for (std::size_t i = 0; i < 6; ++i) {
+      const YAML::Node e = n[i];
+      const double lim = i < 3 ? 10.0 : 360.0;
+      if (!e.IsScalar() || !YAML::convert<double>::decode(e, v[i]) || !std::isfinite(v[i]) || std::abs(v[i]) > lim) {
+        r.error(e, path + "[" + std::to_string(i) + "]", std::string(expected) + ", got " + node_kind(e));
+        return false;
+      }
+    }
+    out = v;
+    return true;
+  };
+  if (const auto m = r.child(node, P, "X_Tool_Board", false)) six(*m, P + ".X_Tool_Board", b.X_Tool_Board);
+  if (const auto poses = r.child(node, P, "poses", false)) {
+    if (!poses->IsSequence() || poses->size() < 6 || poses->size() > 200) {
+      r.error(*poses, P + ".poses", "expected a list of 6 to 200 poses, got " + node_kind(*poses) +
+                                        (poses->IsSequence() ? " of " + std::to_string(poses->size()) : std::string()));
+    } else {
+      b.poses.clear();
+      for (std::size_t i = 0; i < poses->size(); ++i) {
+        PoseSix p{};
+        if (six((*poses)[i], P + ".poses[" + std::to_string(i) + "]", p)) b.poses.push_back(p);
+      }
+    }
+  }
+  r.number(node, P, "max_rms_mm", b.max_rms_mm, 0.01, 100.0, false);
+  r.number(node, P, "max_abs_mm", b.max_abs_mm, 0.01, 500.0, false);
+  double move = to_seconds(b.move_timeout);
+  long long settle = b.settle / 1'000'000;
+  r.number(node, P, "move_timeout_s", move, 0.1, 600.0, false);
+  r.integer(node, P, "settle_ms", settle, 0, 60'000, false);
+  b.move_timeout = static_cast<Nanos>(move * 1e9);
+  b.settle = millis(settle);
+}
+
 }  // namespace
 
 std::vector<ConfigError> check_config(const std::string& path, const std::vector<std::string>& known_tasks) {
@@ -666,7 +716,7 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML: " + e.msg}});
   }
   if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "spray", "devices", "calibration", "panel_types",
-                      "vision", "marking"}))
+                      "vision", "marking", "base_calibration"}))
     throw ConfigInvalid(errors);
 
   if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name", "results_file"})) {
@@ -711,6 +761,7 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   if (const auto p = r.child(root, "", "panel_types", true)) read_panel_types(r, *p, cfg);
   if (const auto v = r.child(root, "", "vision", false)) read_vision(r, *v, cfg.vision);
   if (const auto m = r.child(root, "", "marking", false)) read_marking(r, *m, cfg.marking);
+  if (const auto b = r.child(root, "", "base_calibration", false)) read_base_calibration(r, *b, cfg.base_calibration);
 
   // Simulated devices are advanced by the sim_world task: one without the other is a
   // configuration that cannot run.

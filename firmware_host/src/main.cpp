@@ -11,16 +11,20 @@
 #include <string>
 
 #include "markcell/common/check.hpp"
+#include "markcell/host/base_calibration_run.hpp"
 #include "markcell/host/bench.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/host/rig/replay.hpp"
 #include "markcell/host/rig/scenario.hpp"
+#include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/panel_tracker.hpp"
 #include "markcell/vision/stereo_calibration.hpp"
 
 #include <filesystem>
+#include <fstream>
+#include <optional>
 #include <opencv2/imgcodecs.hpp>
 
 namespace {
@@ -190,6 +194,68 @@ int calibrate_stereo_command(const std::string& folder, const std::string& board
   return 0;
 }
 
+// With the simulated arm: the rig's calibration-board scenario (the camera truly where
+// the configured X_Base_CamR is not quite); otherwise the live arm and cameras. Writes
+// `out` only when the fit is within the limits.
+int calibrate_base_command(const CellConfig& config, const std::string& out, std::uint64_t seed, const std::string& images,
+                           const std::string& report_dir) {
+  const BaseCalibrationConfig& bc = config.base_calibration;
+  if (bc.poses.size() < 6) {
+    std::cerr << config.file << ": base_calibration.poses: " << bc.poses.size()
+              << " poses configured, calibrate-base needs at least 6 (15 or more recommended)\n";
+    return kExitConfig;
+  }
+  if (config.calibration.base.empty()) {
+    std::cerr << config.file << ": calibration.base: calibrate-base needs the nominal X_Base_CamR (from the cell's drawing) "
+              << "to tell the ends of the board apart\n";
+    return kExitConfig;
+  }
+  const Eigen::Isometry3d nominal = vision::load_pose(config.calibration.base, "X_Base_CamR");
+  const vision::StereoCalibration stereo = vision::load_stereo_calibration(config.calibration.stereo);
+  const vision::StereoRig rig(stereo);
+  std::unique_ptr<BaseCalibrationDevices> devices;
+  std::optional<Eigen::Isometry3d> truth;
+  if (config.arm.transport == ArmTransport::kSimulated) {
+    const rig::Scenario scenario = rig::make_scenario("calibration-board", seed);
+    truth = nominal * scenario.X_CamRnominal_CamR;
+    devices = make_rig_board_devices(config, stereo, *truth, seed);
+    std::cout << "calibrate-base on the rig's calibration-board scenario (seed " << seed
+              << "): the simulated arm behind the CAN arm link, the board rendered where it holds it\n";
+  } else {
+    devices = make_live_devices(config);
+  }
+  const BaseCalibrationRun run = run_base_calibration(*devices, rig, nominal, bc, &std::cout);
+  std::cout << base_calibration_table(run);
+  if (truth)
+    std::printf("against the rig's truth: %.2f mm, %.3f deg\n", translation_error(run.result.X_Base_CamR, *truth) * 1e3,
+                rotation_error_deg(run.result.X_Base_CamR, *truth));
+  if (!images.empty()) {
+    std::filesystem::create_directories(images);
+    for (std::size_t i = 0; i < run.left_images.size(); ++i) {
+      char name[64];
+      std::snprintf(name, sizeof name, "view%02zu_left.png", i + 1);
+      cv::imwrite((std::filesystem::path(images) / name).string(), run.left_images[i]);
+      std::snprintf(name, sizeof name, "view%02zu_right.png", i + 1);
+      cv::imwrite((std::filesystem::path(images) / name).string(), run.right_images[i]);
+    }
+    std::cout << "wrote the " << run.left_images.size() << " stereo pairs to " << images << "\n";
+  }
+  if (!report_dir.empty()) {
+    std::filesystem::create_directories(report_dir);
+    const std::string report = (std::filesystem::path(report_dir) / "report.json").string();
+    std::ofstream(report) << base_calibration_json(run, "calibration-board", seed, truth ? &*truth : nullptr);
+    std::cout << "wrote " << report << "\n";
+  }
+  if (!run.result.ok()) {
+    std::cerr << "markcell calibrate-base: refused (" << control::to_string(run.result.status) << "): " << run.result.reason
+              << "; " << out << " not written\n";
+    return kExitRuntime;
+  }
+  vision::save_pose(out, "X_Base_CamR", run.result.X_Base_CamR);
+  std::cout << "wrote X_Base_CamR to " << out << "\n";
+  return 0;
+}
+
 std::optional<CellConfig> load_or_report(const std::string& file) {
   try {
     return load_config(file, task_catalog());
@@ -218,6 +284,10 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, std:
   } catch (const std::invalid_argument& e) {
     std::cerr << "markcell sim: " << e.what() << "\n";
     return kExitConfig;
+  }
+  if (scenario.board_only) {
+    const auto o = std::filesystem::path(out);
+    return calibrate_base_command(config, (o / "base.yaml").string(), seed, (o / "board").string(), out);
   }
   const std::filesystem::path recording = std::filesystem::path(out) / "recording";
   // The folder is the rig's own output: a previous run's recording is replaced.
@@ -312,12 +382,21 @@ int main(int argc, char** argv) {
   calibrate->add_option("--square", cal_square, "Square size in metres")->required()->check(CLI::PositiveNumber);
   calibrate->add_option("--out", cal_out, "Calibration file to write (OpenCV FileStorage YAML)")->required();
 
+  std::string base_config = "config/cell.example.yaml", base_out, base_images;
+  std::uint64_t base_seed = 1;
+  auto* calibrate_base = app.add_subcommand(
+      "calibrate-base", "Fit X_Base_CamR from a checkerboard on the gripper at the configured arm poses (simulated arm: the rig)");
+  calibrate_base->add_option("--config,-c", base_config, "Cell configuration (YAML): devices, base_calibration section");
+  calibrate_base->add_option("--out", base_out, "Calibration file to write X_Base_CamR to (only when within the limits)")->required();
+  calibrate_base->add_option("--images", base_images, "Also save the stereo pairs taken into this folder");
+  calibrate_base->add_option("--seed", base_seed, "The rig's calibration-board scenario seed (simulated arm only)");
+
   std::string rig_config = "config/cell.example.yaml", rig_out, sim_scenario, replay_recording, scanner_file;
   std::uint64_t sim_seed = 1;
   double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
   bool one_predictor = false, quiet = false;
   auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
-  sim->add_option("SCENARIO", sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects")
+  sim->add_option("SCENARIO", sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
       ->required();
   sim->add_option("--seed", sim_seed, "Scenario seed (noise, speed fluctuation, drops)");
   sim->add_option("--seconds", sim_seconds, "Shorten the scenario to this many seconds")->check(CLI::PositiveNumber);
@@ -373,6 +452,11 @@ int main(int argc, char** argv) {
   try {
     if (*check) return check_config_command(check_file);
     if (*calibrate) return calibrate_stereo_command(cal_images, cal_board, cal_square, cal_out);
+    if (*calibrate_base) {
+      const auto config = load_or_report(base_config);
+      if (!config) return kExitConfig;
+      return calibrate_base_command(*config, base_out, base_seed, base_images, "");
+    }
     if (*sim || *replay) {
       const auto config = load_or_report(rig_config);
       if (!config) return kExitConfig;

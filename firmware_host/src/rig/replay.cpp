@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "markcell/control/tool_pose.hpp"
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
@@ -16,14 +17,6 @@
 namespace markcell::host::rig {
 
 namespace {
-
-Eigen::Isometry3d to_isometry(const drivers::ToolPose& p) {
-  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-  const Eigen::Vector3d r(p.rotation[0], p.rotation[1], p.rotation[2]);
-  if (r.norm() > 1e-15) X.linear() = Eigen::AngleAxisd(r.norm(), r.normalized()).toRotationMatrix();
-  X.translation() = Eigen::Vector3d(p.position[0], p.position[1], p.position[2]);
-  return X;
-}
 
 // The recorded truth between frames: translation linear, rotation by slerp.
 class TruthTrack {
@@ -149,7 +142,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   std::vector<Spray> sprays;
   const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
   for (std::size_t i = 0; i < cell.sim_spray_count(); ++i)
-    sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * to_isometry(cell.sim_spray(i).tool)});
+    sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_spray(i).tool)});
   std::vector<SkippedDefect> skipped;
   for (int i = 0; i < run.panel.defect_count; ++i) {
     const auto& d = run.panel.defects[static_cast<std::size_t>(i)];

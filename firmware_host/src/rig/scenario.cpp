@@ -1,6 +1,7 @@
 #include "markcell/host/rig/scenario.hpp"
 
 #include <cmath>
+#include <random>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -47,7 +48,8 @@ Scenario paper_line(const std::string& name, const std::string& panel, std::uint
 
 const std::vector<std::string>& scenario_names() {
   static const std::vector<std::string> kNames = {"paper-door", "paper-fender", "paper-curved", "line-fast",
-                                                  "occlusion-person", "frame-drops", "nine-defects"};
+                                                  "occlusion-person", "frame-drops", "nine-defects",
+                                                  "calibration-board"};
   return kNames;
 }
 
@@ -92,6 +94,18 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed) {
     return s;
   }
   std::string known;
+  if (name == "calibration-board") {
+    Scenario s;
+    s.name = name;
+    s.seed = seed;
+    s.board_only = true;
+    std::mt19937_64 rng(seed * 7919 + 17);
+    std::uniform_real_distribution<double> t(-0.02, 0.02), a(-1.0, 1.0);
+    const Eigen::Vector3d axis = Eigen::Vector3d(a(rng), a(rng), a(rng)).normalized();
+    s.X_CamRnominal_CamR.linear() = Eigen::AngleAxisd(0.015 * (0.5 + 0.5 * std::abs(a(rng))), axis).toRotationMatrix();
+    s.X_CamRnominal_CamR.translation() = Eigen::Vector3d(t(rng), t(rng), t(rng));
+    return s;
+  }
   for (const auto& n : scenario_names()) known += (known.empty() ? "" : ", ") + n;
   throw std::invalid_argument("unknown scenario '" + name + "' (known: " + known + ")");
 }
@@ -125,6 +139,8 @@ bool frame_dropped(const Scenario& s, std::uint64_t index) {
 std::size_t generate_recording(const Scenario& s, const std::string& folder, const vision::StereoCalibration& marking,
                                const vision::StereoCalibration& scanner, const vision::RenderSettings& render,
                                const GenerateOptions& options) {
+  if (s.board_only)
+    throw std::invalid_argument("scenario '" + s.name + "' has no panel to record: markcell calibrate-base runs it");
   const vision::PanelShape panel = vision::panel_shape(s.panel_type);
   const Nanos duration = options.max_duration > 0 ? std::min(options.max_duration, s.duration) : s.duration;
   const double fps = options.fps > 0 ? options.fps : s.fps;

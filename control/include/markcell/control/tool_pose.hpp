@@ -17,6 +17,8 @@
 
 #include <Eigen/Geometry>
 
+#include "markcell/drivers/arm.hpp"
+
 namespace markcell::control {
 
 enum class ToolPoseStatus : std::uint8_t { kOk, kTooFewPoints, kCollinear, kFacingAway };
@@ -36,5 +38,9 @@ struct DefectToolPose {
 // `camera_P`: the right camera's position in P (the origin, for P as the tracker sets it).
 DefectToolPose tool_pose(std::span<const Eigen::Vector3d> points_P, double standoff,
                          const Eigen::Vector3d& camera_P = Eigen::Vector3d::Zero(), int min_points = 6);
+
+// The arm link's tool pose (position, rotation vector) and the rigid transform it is.
+drivers::ToolPose to_tool_pose(const Eigen::Isometry3d& X_Base_Tool);
+Eigen::Isometry3d to_isometry(const drivers::ToolPose& pose);
 
 }  // namespace markcell::control

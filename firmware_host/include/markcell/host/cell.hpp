@@ -30,6 +30,13 @@ const std::vector<std::string>& task_catalog();
 
 enum class ClockKind { kReal, kSimulated };
 
+// The arm link's pieces as configured, shared by the cell and calibrate-base.
+drivers::CanArmLinkConfig can_link_config(const CanConfig& c);
+drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm);
+// A real transport's link (can, serial); `bus` receives the SocketCAN bus a CAN link
+// runs on. Throws std::logic_error for the simulated transport (the cell's own world).
+std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::unique_ptr<drivers::SocketCanBus>& bus);
+
 // What the simulated arm's nozzle did at each valve opening: the rig scores these.
 struct SimSpray {
   Nanos time = 0;

@@ -170,6 +170,22 @@ struct CalibrationPaths {
   std::string base;
 };
 
+// `markcell calibrate-base`: the board on the gripper and the poses the arm takes it to.
+// A pose is [x, y, z] in metres and a rotation vector [rx, ry, rz] in degrees, both in
+// the base frame (the arm link's tool-pose convention).
+using PoseSix = std::array<double, 6>;
+struct BaseCalibrationConfig {
+  int board_cols = 9;           // inner corners
+  int board_rows = 6;
+  double square_m = 0.06;
+  PoseSix X_Tool_Board{-0.24, -0.15, 0.02, 0, 0, 0};  // the board's first inner corner on the tool
+  std::vector<PoseSix> poses;   // at least 6; 15 or more recommended
+  double max_rms_mm = 2.0;      // refuse to write a fit above these
+  double max_abs_mm = 6.0;
+  Nanos move_timeout = seconds(15);  // per pose: in position within this, or the pose is skipped
+  Nanos settle = millis(300);        // in position this long before the picture
+};
+
 struct CellConfig {
   std::string file;     // the YAML file it came from
   std::string name;
@@ -185,6 +201,7 @@ struct CellConfig {
   std::vector<PanelTypeConfig> panel_types;
   VisionConfig vision;
   MarkingConfig marking;
+  BaseCalibrationConfig base_calibration;
 };
 
 // Validates and loads; throws ConfigInvalid with every error found. `known_tasks`: the

@@ -10,6 +10,9 @@
 //   occlusion-person  paper-door with a person walking through the view
 //   frame-drops       paper-door with frames lost (10 %, and a burst of 15)
 //   nine-defects      the door with 9 dings about 30 cm apart (the paper's capacity)
+//   calibration-board a checkerboard on the gripper at the configured robot poses (15
+//                     in the example), the camera where the configured X_Base_CamR is
+//                     not quite: what `markcell calibrate-base` must find
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -44,6 +47,10 @@ struct Scenario {
   double exposure_drift = 0.04;            // relative amplitude of a slow exposure drift
   Eigen::Isometry3d X_SL_Panel = Eigen::Isometry3d::Identity();  // the panel at the inspection station
   InspectionNoise inspection;
+  // calibration-board: the true camera pose relative to the configured one (a few
+  // centimetres and a degree: an installation's nominal drawing against reality).
+  Eigen::Isometry3d X_CamRnominal_CamR = Eigen::Isometry3d::Identity();
+  bool board_only = false;  // calibration-board: no panel, no line
 };
 
 const std::vector<std::string>& scenario_names();

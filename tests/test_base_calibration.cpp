@@ -13,6 +13,7 @@
 #include "markcell/control/base_calibration.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "markcell/host/base_calibration_run.hpp"
+#include "markcell/host/capacity.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/rig/scenario.hpp"
 #include "markcell/vision/calibration_io.hpp"
@@ -200,4 +201,29 @@ TEST_CASE("calibrate-base: an unreachable pose and a pose where the board leaves
   CHECK(run.skipped[1] == "pose 8: board not found in the left image");
   CHECK(run.result.ok());
   CHECK(run.result.kept == 6);
+}
+
+// (markcell capacity lives with calibrate-base among the commissioning tools.)
+TEST_CASE("capacity: the reach window is the chord of the reach sphere, a slow line marks the whole row, a fast one not") {
+  const auto config = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  const Eigen::Isometry3d X_Base_CamR = vision::load_pose(config.calibration.base, "X_Base_CamR");
+  const double depth = 3.1;
+  // The nozzles' path in the base frame: a line; its distance h from the base origin
+  // gives the chord 2 sqrt(R^2 - h^2) the line travels within reach.
+  const Eigen::Vector3d o = X_Base_CamR * Eigen::Vector3d(0, 0, depth - config.marking.standoff_m);
+  const Eigen::Vector3d dir =
+      (X_Base_CamR.linear() *
+       Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1], config.marking.line_direction[2]))
+          .normalized();
+  const double h = (o - o.dot(dir) * dir).norm();
+  const double chord = 2 * std::sqrt(config.arm.limits.reach * config.arm.limits.reach - h * h);
+
+  const auto slow = host::marking_capacity(config, X_Base_CamR, 0.014, 0.05, depth, 1.0);
+  CHECK(slow.window_s == Approx(chord / 0.014).margin(0.004 / 0.014));
+  CHECK(slow.row == 21);
+  CHECK(slow.defects == 21);
+  const auto fast = host::marking_capacity(config, X_Base_CamR, 0.6, 0.05, depth, 4.0);
+  CHECK(fast.row == 81);
+  CHECK(fast.defects > 0);
+  CHECK(fast.defects < 10);  // 0.7 s a defect against 0.08 s of line between them, a 4 s window
 }

@@ -10,6 +10,7 @@
 
 #include "alloc_guard.hpp"
 #include "markcell/control/intercalibration.hpp"
+#include "markcell/control/planner.hpp"
 #include "markcell/control/predictor.hpp"
 #include "markcell/control/tool_pose.hpp"
 
@@ -157,4 +158,65 @@ TEST_CASE("Kalman predictor: constant speed with a turn, through noise, predicts
   // A point 40 cm off the anchor rotates with the panel.
   const Eigen::Vector3d q = anchor + Eigen::Vector3d(0.4, 0.1, 0);
   CHECK((X * q - truth(10.5) * q).norm() < 0.003);
+}
+
+// ---------------------------------------------------------------------------------
+// The planner: closed-form cases.
+
+TEST_CASE("planner: rest-to-rest move times, triangle and trapezoid") {
+  control::ArmTimingModel arm;
+  arm.max_speed = 1.0;
+  arm.max_accel = 4.0;
+  CHECK(control::move_seconds(arm, 0.0) == 0.0);
+  CHECK(control::move_seconds(arm, 0.16) == Approx(0.4));        // 2 sqrt(0.16 / 4): never reaches 1 m/s
+  CHECK(control::move_seconds(arm, 0.25) == Approx(0.5));        // exactly reaches it
+  CHECK(control::move_seconds(arm, 1.25) == Approx(1.25 + 0.25));  // d / v + v / a
+}
+
+TEST_CASE("planner: a standing panel: the times add up move by move") {
+  control::ArmTimingModel arm;
+  arm.settle = millis(300);
+  arm.pulse = millis(100);
+  const std::array<control::PlanDefect, 3> defects{{{0, {1.0, 0.0, 0.5}, true}, {1, {1.0, 0.25, 0.5}, true}, {2, {1.0, 0.25, 0.66}, false}}};
+  std::array<control::PlanEntry, 3> out{};
+  const auto plan = control::plan_marking(defects, Eigen::Vector3d(1.0, -1.25, 0.5), Eigen::Vector3d::Zero(), arm, out);
+  CHECK(plan.feasible == 2);
+  CHECK(plan.infeasible == 0);
+  CHECK(out[0].verdict == control::PlanVerdict::kFeasible);
+  CHECK(out[0].spray_time == Approx(1.5 + 0.3));               // 1.25 m: 1.5 s, then settle
+  CHECK(out[1].spray_time == Approx(1.8 + 0.1 + 0.5 + 0.3));   // pulse, 0.25 m: 0.5 s, settle
+  CHECK(out[2].verdict == control::PlanVerdict::kNotPlanned);
+  CHECK(plan.finish_time == Approx(2.7 + 0.1));
+}
+
+TEST_CASE("planner: the line brings a defect into reach, takes one out, and misses one") {
+  control::ArmTimingModel arm;
+  arm.reach = 1.0;
+  arm.settle = millis(200);
+  arm.pulse = millis(50);
+  const Eigen::Vector3d v(0.0, 0.1, 0.0);  // 10 cm/s along +y
+  // 0: just inside, about to leave: gone before the arm (0.9 m away) arrives.
+  // 1: upstream at y = -2: enters the 1 m sphere at y = -sqrt(1 - 0.6^2) = -0.8, after 12 s.
+  // 2: beside the line's path at x = 1.2: never within reach.
+  const std::array<control::PlanDefect, 3> defects{{{7, {0.0, 0.99, 0.0}, true}, {8, {0.6, -2.0, 0.0}, true}, {9, {1.2, -3.0, 0.0}, true}}};
+  std::array<control::PlanEntry, 3> out{};
+  const auto plan = control::plan_marking(defects, Eigen::Vector3d(0.0, 0.0, 0.0), v, arm, out);
+  CHECK(out[0].verdict == control::PlanVerdict::kLeavesReach);
+  CHECK(out[1].verdict == control::PlanVerdict::kFeasible);
+  CHECK(out[1].spray_time == Approx(12.0).margin(0.021));  // waits for it (search step 20 ms)
+  CHECK(out[2].verdict == control::PlanVerdict::kNeverInReach);
+  CHECK(out[0].index == 7);
+  CHECK(plan.feasible == 1);
+  CHECK(plan.infeasible == 2);
+}
+
+TEST_CASE("planner: allocation-free") {
+  control::ArmTimingModel arm;
+  std::array<control::PlanDefect, 4> defects{};
+  for (int i = 0; i < 4; ++i) defects[static_cast<std::size_t>(i)] = {i, Eigen::Vector3d(0.5, 0.1 * i, 0.8), true};
+  std::array<control::PlanEntry, 4> out{};
+  test::AllocationGuard guard;
+  const auto plan = control::plan_marking(defects, Eigen::Vector3d(0.3, 0, 0.6), Eigen::Vector3d(0, 0.015, 0), arm, out);
+  CHECK(guard.allocations() == 0);
+  CHECK(plan.feasible == 4);
 }

@@ -91,6 +91,9 @@ TEST_CASE("markcell sim paper-door: all three dings marked within the radius, no
   CHECK(y < 0.89);
   CHECK(z < 2.01);
   CHECK(json_number(json, "deadline_misses", "deadline_misses") == 0);
+  // The plan made once the door's motion was known: all three feasible, as the run found.
+  CHECK(json_number(json, "plan", "feasible") == 3);
+  CHECK(json.find("\"matches_run\": true") != std::string::npos);
   for (const char* f : {"prediction.png", "mf_epipolar.png", "mf_area.png", "sprays.png", "commands.log"})
     CHECK(std::filesystem::exists(sim_dir() + "/" + f));
   // Three valve pulses in the command log, each opened and closed.
@@ -307,4 +310,29 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done; wit
     }
     cell.shutdown(control::FaultCode::kShutdown, "test", "done");
   }
+}
+
+TEST_CASE("defects the arm cannot reach are planned out at once, reported with the reason, never attempted") {
+  test::TempDir dir;
+  std::filesystem::copy(source_path("config"), dir.path() / "config", std::filesystem::copy_options::recursive);
+  const auto cfg = dir.path() / "config" / "cell.example.yaml";
+  std::string text = read_file(cfg.string());
+  const auto at = text.find("reach_m: 1.6");
+  REQUIRE(at != std::string::npos);
+  text.replace(at, 12, "reach_m: 0.9");  // the dings' spraying poses are 1.1 to 1.3 m from the base
+  std::ofstream(cfg.string()) << text;
+  const std::string out = (dir.path() / "out").string();
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + sim_dir() + "/recording --config " +
+                             cfg.string() + " --one-predictor -q --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  const std::string json = read_file(out + "/report.json");
+  INFO(json);
+  CHECK(json_number(json, "plan", "feasible") == 0);
+  CHECK(json_number(json, "plan", "infeasible") == 3);
+  CHECK(json.find("\"verdict\": \"never within the arm's reach\"") != std::string::npos);
+  CHECK(json.find("\"matches_run\": true") != std::string::npos);
+  CHECK(json_number(json, "defects", "skipped") == 3);
+  CHECK(json.find("planned out: not within the arm's reach in its turn (the plan's verdict says why)") != std::string::npos);
+  CHECK(read_file(out + "/commands.log").find("valve open") == std::string::npos);
 }

@@ -11,6 +11,7 @@ std::string_view to_string(SkipReason r) {
     case SkipReason::kIntercalibration: return "inter-calibration failed or above its limit";
     case SkipReason::kToolPose: return "no tool pose for the defect's points";
     case SkipReason::kOutOfReach: return "spraying pose out of the arm's reach";
+    case SkipReason::kPlanned: return "planned out: not within the arm's reach in its turn (the plan's verdict says why)";
     case SkipReason::kNotSettled: return "arm did not settle on the moving target in time";
     case SkipReason::kNoPrediction: return "panel not tracked when the defect's turn came";
     case SkipReason::kNotFound: return "panel's macro-features not found";
@@ -158,6 +159,8 @@ void MarkingSequence::start_panel(Nanos now) {
   defect_ = -1;
   next_ = 0;
   home_sent_ = false;
+  planned_ = false;
+  poses_since_intercal_ = 0;
   deadline_ = now + params_.acquire_timeout;
   state_ = MarkingState::kAcquire;
 }
@@ -183,6 +186,45 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
   }
   predictor_.update(e.time, e.X_CamR_P);
   if (state_ == MarkingState::kAcquire && predictor_.ready()) next_defect(now);
+  if (!planned_ && ++poses_since_intercal_ >= params_.plan_after_poses &&
+      (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying))
+    plan_panel(now);
+}
+
+void MarkingSequence::plan_panel(Nanos now) {
+  planned_ = true;
+  result_.planned_at = now;
+  // The defects not yet done, in their order (the one under way first), where their
+  // spraying poses are now and how the line moves them (the predictor's motion over 1 s).
+  const int first = defect_ >= 0 && state_ == MarkingState::kApproach ? next_ - 1 : next_;
+  const Eigen::Isometry3d X_now = predictor_.predict(now), X_later = predictor_.predict(now + seconds(1));
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();
+  std::size_t n = 0;
+  for (int k = first; k < job_.defect_count; ++k) {
+    const int i = order_[static_cast<std::size_t>(k)];
+    const auto d = static_cast<std::size_t>(i);
+    const Eigen::Vector3d p = nozzle_in_base(X_now, i).translation();
+    if (n == 0) velocity = nozzle_in_base(X_later, i).translation() - p;
+    plan_in_[n++] = PlanDefect{i, p, tools_[d].ok()};
+  }
+  const auto& tool = arm_.state().tool.position;
+  plan_marking(std::span(plan_in_.data(), n), Eigen::Vector3d(tool[0], tool[1], tool[2]), velocity, params_.timing,
+               std::span(plan_out_.data(), n));
+  bool current_out = false;
+  for (std::size_t k = 0; k < n; ++k) {
+    const PlanEntry& e = plan_out_[k];
+    DefectResult& r = result_.defects[static_cast<std::size_t>(e.index)];
+    r.plan = e.verdict;
+    if (e.verdict == PlanVerdict::kFeasible) {
+      r.planned_spray = now + static_cast<Nanos>(e.spray_time * 1e9);
+      if (e.index == defect_) deadline_ = std::max(deadline_, r.planned_spray + params_.defect_timeout);
+    }
+    if (e.verdict == PlanVerdict::kFeasible || e.verdict == PlanVerdict::kNotPlanned) continue;
+    // Reported now, never attempted: the arm's time goes to the defects it can mark.
+    r.skipped = SkipReason::kPlanned;
+    if (e.index == defect_ && state_ == MarkingState::kApproach) current_out = true;
+  }
+  if (current_out) next_defect(now);
 }
 
 void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
@@ -237,8 +279,11 @@ void MarkingSequence::next_defect(Nanos now) {
       r.skipped = SkipReason::kToolPose;
       continue;
     }
+    if (r.skipped == SkipReason::kPlanned) continue;
     r.approach_start = now;
-    deadline_ = now + params_.defect_timeout;
+    // A defect the plan expects later (the line has yet to bring it within reach) has
+    // its timeout counted from then.
+    deadline_ = std::max(now, r.planned_spray) + params_.defect_timeout;
     settled_since_ = -1;
     state_ = MarkingState::kApproach;
     return;

@@ -35,6 +35,17 @@ drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm) {
   return limits;
 }
 
+control::ArmTimingModel arm_timing_model(const CellConfig& config) {
+  control::ArmTimingModel m;
+  m.max_speed = config.arm.limits.max_tcp_speed;
+  m.max_accel = config.arm.limits.max_tcp_accel;
+  m.reach = config.arm.limits.reach;
+  m.settle = config.marking.plan_settle;
+  m.pulse = config.spray.pulse;
+  m.defect_timeout = config.marking.defect_timeout;
+  return m;
+}
+
 std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::unique_ptr<drivers::SocketCanBus>& bus_out) {
   switch (arm.transport) {
     case ArmTransport::kSimulated:
@@ -238,6 +249,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     mp.defect_timeout = config.marking.defect_timeout;
     mp.acquire_timeout = config.marking.acquire_timeout;
     mp.home_timeout = config.marking.home_timeout;
+    mp.timing = arm_timing_model(config);
     mp.require_result_ack = !config.results_file.empty();
     mp.line_direction_CamR = Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1],
                                              config.marking.line_direction[2]).normalized();

@@ -13,6 +13,7 @@
 #include "markcell/common/check.hpp"
 #include "markcell/host/base_calibration_run.hpp"
 #include "markcell/host/bench.hpp"
+#include "markcell/host/capacity.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/results_file.hpp"
@@ -391,6 +392,16 @@ int main(int argc, char** argv) {
   calibrate_base->add_option("--images", base_images, "Also save the stereo pairs taken into this folder");
   calibrate_base->add_option("--seed", base_seed, "The rig's calibration-board scenario seed (simulated arm only)");
 
+  std::string capacity_config = "config/cell.example.yaml";
+  std::vector<double> capacity_speeds{0.014, 0.15, 0.30, 0.60}, capacity_spacings{0.05, 0.10, 0.20, 0.30};
+  double capacity_depth = 3.1, capacity_length = 1.0;
+  auto* capacity = app.add_subcommand("capacity", "How many defects at spacing d one pass can mark at a line speed (the planner's model)");
+  capacity->add_option("--config,-c", capacity_config, "Cell configuration (arm limits, settle, pulse, X_Base_CamR)");
+  capacity->add_option("--speed", capacity_speeds, "Line speeds, m/s (repeat)")->check(CLI::PositiveNumber);
+  capacity->add_option("--spacing", capacity_spacings, "Defect spacings along the line, m (repeat)")->check(CLI::PositiveNumber);
+  capacity->add_option("--depth", capacity_depth, "Panel surface distance from CamR, m")->check(CLI::PositiveNumber);
+  capacity->add_option("--length", capacity_length, "Panel length along the line, m (the row it carries)")->check(CLI::PositiveNumber);
+
   std::string rig_config = "config/cell.example.yaml", rig_out, sim_scenario, replay_recording, scanner_file;
   std::uint64_t sim_seed = 1;
   double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
@@ -452,6 +463,14 @@ int main(int argc, char** argv) {
   try {
     if (*check) return check_config_command(check_file);
     if (*calibrate) return calibrate_stereo_command(cal_images, cal_board, cal_square, cal_out);
+    if (*capacity) {
+      const auto config = load_or_report(capacity_config);
+      if (!config) return kExitConfig;
+      const Eigen::Isometry3d X_Base_CamR =
+          config->calibration.base.empty() ? Eigen::Isometry3d::Identity() : vision::load_pose(config->calibration.base, "X_Base_CamR");
+      std::cout << capacity_table(*config, X_Base_CamR, capacity_speeds, capacity_spacings, capacity_depth, capacity_length);
+      return 0;
+    }
     if (*calibrate_base) {
       const auto config = load_or_report(base_config);
       if (!config) return kExitConfig;

@@ -43,6 +43,48 @@ Counts counts(const PredictorRun& r) {
   return c;
 }
 
+// The plan made once the panel's motion was known, against what the run did: each
+// defect planned feasible was sprayed and each planned out was not (matches_run), and
+// how far the planned pulse times were from the actual ones.
+struct PlanCheck {
+  bool made = false;
+  int feasible = 0, infeasible = 0;
+  bool matches = true;
+  double time_error_max = 0;  // s
+};
+PlanCheck plan_check(const PredictorRun& r) {
+  PlanCheck p;
+  p.made = r.panel.planned_at >= 0;
+  for (int i = 0; i < r.panel.defect_count && p.made; ++i) {
+    const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
+    if (d.plan == control::PlanVerdict::kNotPlanned) continue;
+    const bool feasible = d.plan == control::PlanVerdict::kFeasible;
+    (feasible ? p.feasible : p.infeasible) += 1;
+    if (feasible != d.sprayed) p.matches = false;
+    if (feasible && d.sprayed)
+      p.time_error_max = std::max(p.time_error_max, std::abs(to_seconds(d.spray_requested - d.planned_spray)));
+  }
+  return p;
+}
+
+std::string plan_json(const PredictorRun& r) {
+  const PlanCheck p = plan_check(r);
+  if (!p.made) return "\"plan\": null";
+  std::string j = "\"plan\": {\"feasible\": " + std::to_string(p.feasible) + ", \"infeasible\": " + std::to_string(p.infeasible) +
+                  ", \"matches_run\": " + (p.matches ? "true" : "false") + ", \"spray_time_error_s_max\": " +
+                  num(p.time_error_max) + ", \"verdicts\": [";
+  bool first = true;
+  for (int i = 0; i < r.panel.defect_count; ++i) {
+    const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
+    // Times from when the plan was made.
+    const auto since = [&](Nanos t) { return t >= 0 ? num(to_seconds(t - r.panel.planned_at)) : std::string("null"); };
+    j += std::string(first ? "" : ", ") + "{\"id\": " + std::to_string(d.id) + ", \"verdict\": " + quote(control::to_string(d.plan)) +
+         ", \"planned_spray_s\": " + since(d.planned_spray) + ", \"spray_s\": " + since(d.sprayed ? d.spray_requested : -1) + "}";
+    first = false;
+  }
+  return j + "]}";
+}
+
 // The figures of one predictor's run, as JSON members (no braces), indented.
 std::string run_json(const PredictorRun& r, const std::string& ind) {
   const Counts c = counts(r);
@@ -58,6 +100,7 @@ std::string run_json(const PredictorRun& r, const std::string& ind) {
     first = false;
   }
   o << "]},\n";
+  o << ind << plan_json(r) << ",\n";
   o << ind << "\"false_sprays\": " << (r.scored ? std::to_string(r.score.false_sprays) : "null") << ",\n";
   o << ind << "\"marking_error_mm\": {\"max\": " << (r.scored && r.score.marked > 0 ? num(r.score.error_max * 1000) : "null")
     << ", \"rms\": " << (r.scored && r.score.marked > 0 ? num(r.score.error_rms * 1000) : "null") << "},\n";
@@ -319,6 +362,11 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
     const Counts c = counts(r);
     return std::to_string(c.marked) + "/" + std::to_string(c.planned) + "/" + std::to_string(c.skipped);
   }, report.panel_type == "fender" ? "4 in 15 s" : "3 in 10 s");
+  row("plan: feasible / matches the run", [](const PredictorRun& r) {
+    const PlanCheck p = plan_check(r);
+    return p.made ? std::to_string(p.feasible) + "/" + std::to_string(p.feasible + p.infeasible) + " " + (p.matches ? "yes" : "NO")
+                  : std::string("-");
+  }, "-");
   row("false sprays", [](const PredictorRun& r) { return r.scored ? std::to_string(r.score.false_sprays) : std::string("-"); }, "-");
   row("marking error max / rms, mm", [](const PredictorRun& r) {
     return r.scored && r.score.marked > 0 ? num(r.score.error_max * 1000, 1) + " / " + num(r.score.error_rms * 1000, 1) : std::string("-");

@@ -22,6 +22,7 @@
 #include "markcell/common/triple_buffer.hpp"
 #include "markcell/control/executive.hpp"
 #include "markcell/control/intercalibration.hpp"
+#include "markcell/control/planner.hpp"
 #include "markcell/control/plc_io.hpp"
 #include "markcell/control/predictor.hpp"
 #include "markcell/control/spray_valve.hpp"
@@ -59,6 +60,7 @@ enum class SkipReason : std::uint8_t {
   kNoPrediction,      // the panel was not tracked (lost, occluded) when it was needed
   kNotFound,          // the panel's MFs were not found
   kStopped,           // safe stop, e-stop or the panel left before its turn
+  kPlanned,           // the plan: the line carries it out of reach before its turn
 };
 std::string_view to_string(SkipReason r);
 
@@ -72,6 +74,10 @@ struct DefectResult {
   // What the controller believed at the spray: the defect's centre in CamR there and then.
   Eigen::Vector3d predicted_centre_CamR = Eigen::Vector3d::Zero();
   Eigen::Isometry3d X_Base_Nozzle = Eigen::Isometry3d::Identity();  // last set-point
+  // The plan made once the panel's motion was known: the verdict, and when it expected
+  // the pulse (executive clock; -1: not planned feasible).
+  PlanVerdict plan = PlanVerdict::kNotPlanned;
+  Nanos planned_spray = -1;
 };
 
 struct PanelResult {
@@ -83,6 +89,7 @@ struct PanelResult {
   int defect_count = 0;
   std::array<DefectResult, kMaxDefects> defects{};
   Nanos started = 0, finished = 0;
+  Nanos planned_at = -1;  // when the plan was made (-1: never, the panel ended first)
 };
 
 struct MarkingParams {
@@ -106,6 +113,10 @@ struct MarkingParams {
   IntercalibrationLimits intercalibration;
   PredictorParams predictor;
   int min_defect_points = 6;
+  // The plan (reach, limits, settle overhead, pulse, defect timeout) is made once this
+  // many poses of the panel have come after its inter-calibration: the motion is known.
+  ArmTimingModel timing;
+  int plan_after_poses = 6;
 };
 
 enum class MarkingState : std::uint8_t { kIdle, kAcquire, kApproach, kSpraying, kHome, kReporting, kWaitRelease };
@@ -160,6 +171,7 @@ class MarkingSequence {
   void next_defect(Nanos now);
   void approach(Nanos now, const TaskContext& ctx);
   void finish_panel(Nanos now);
+  void plan_panel(Nanos now);
   void report_to_plc();
   void fail_panel(Nanos now, std::string_view reason, SkipReason skip);
   void set_plc(int line, bool value);
@@ -195,6 +207,10 @@ class MarkingSequence {
   Nanos settled_since_ = -1;
   bool home_sent_ = false;
   Nanos home_sent_at_ = 0;
+  int poses_since_intercal_ = 0;
+  bool planned_ = false;
+  std::array<PlanDefect, kMaxDefects> plan_in_{};
+  std::array<PlanEntry, kMaxDefects> plan_out_{};
   std::array<PredictionSample, kPredictionLog> prediction_log_{};
   std::size_t prediction_count_ = 0;
 };

@@ -33,6 +33,9 @@ enum class ClockKind { kReal, kSimulated };
 // The arm link's pieces as configured, shared by the cell and calibrate-base.
 drivers::CanArmLinkConfig can_link_config(const CanConfig& c);
 drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm);
+// The planner's model of the arm (limits, reach, settle, pulse, defect timeout): the
+// marking sequence's plans and `markcell capacity` use the same.
+control::ArmTimingModel arm_timing_model(const CellConfig& config);
 // A real transport's link (can, serial); `bus` receives the SocketCAN bus a CAN link
 // runs on. Throws std::logic_error for the simulated transport (the cell's own world).
 std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::unique_ptr<drivers::SocketCanBus>& bus);

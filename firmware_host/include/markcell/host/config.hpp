@@ -149,6 +149,7 @@ struct VisionConfig {
 // The marking sequence (control::MarkingParams), as configured.
 struct MarkingConfig {
   double standoff_m = 0.20;
+  Nanos plan_settle = millis(150);  // the plan's time from arriving on a defect to its pulse
   Nanos command_lead = millis(35);
   double settle_mm = 1.5;
   double settle_deg = 0.6;

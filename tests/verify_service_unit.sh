@@ -15,3 +15,11 @@ if printf '%s\n' "$out" | grep -F "markcell.service" ; then
   exit 1
 fi
 echo "systemd-analyze verify: markcell.service OK"
+# The hardening, as systemd rates it: the overall exposure must be SAFE or OK.
+sec=$(systemd-analyze security --offline=true "$work/markcell.service" 2>&1) || { echo "$sec"; exit 1; }
+overall=$(printf '%s\n' "$sec" | grep -F "Overall exposure level" || true)
+echo "systemd-analyze security: $overall"
+case "$overall" in
+  *" SAFE "*|*" OK "*) ;;
+  *) printf '%s\n' "$sec"; echo "systemd-analyze security rates the unit worse than OK"; exit 1 ;;
+esac

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Builds the .deb from a build folder (cpack), checks its file list, its conffiles and
+# maintainer scripts, and runs the unit inside it through verify_service_unit.sh (with
+# the packaged binary).
+set -euo pipefail
+build=$1
+here=$(cd "$(dirname "$0")" && pwd)
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+(cd "$build" && cpack -G DEB -B "$work/out" >"$work/cpack.log" 2>&1) || { cat "$work/cpack.log"; exit 1; }
+deb=$(ls "$work"/out/markcell_*.deb)
+echo "built $(basename "$deb")"
+dpkg-deb -c "$deb" | awk '{print $6}' | sed 's|^\./|/|' > "$work/files"
+fail=0
+for f in /usr/bin/markcell /usr/lib/systemd/system/markcell.service /etc/markcell/cell.yaml \
+         /etc/markcell/calibration/marking_stereo.yaml /etc/markcell/calibration/base.yaml \
+         /etc/markcell/panels/door.yaml /usr/share/markcell/markcell_arm.dbc \
+         /usr/share/doc/markcell/RECORDING.md /usr/share/doc/markcell/README.md; do
+  grep -qx "$f" "$work/files" || { echo "missing from the package: $f"; fail=1; }
+done
+dpkg-deb -e "$deb" "$work/control"
+grep -qx /etc/markcell/cell.yaml "$work/control/conffiles" || { echo "cell.yaml is not a conffile"; fail=1; }
+grep -q "adduser --system --group" "$work/control/postinst" || { echo "postinst does not create the system user"; fail=1; }
+grep -q "^Depends:.*libgpiod" "$work/control/control" || { echo "Depends lacks the shared libraries"; fail=1; }
+[ "$fail" = 0 ] || exit 1
+dpkg-deb -x "$deb" "$work/root"
+"$work/root/usr/bin/markcell" check-config "$work/root/etc/markcell/cell.yaml"
+"$here/verify_service_unit.sh" "$work/root/usr/lib/systemd/system/markcell.service" "$work/root/usr/bin/markcell"
+echo "the package: file list, conffiles, postinst and unit OK"

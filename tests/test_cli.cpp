@@ -37,7 +37,7 @@ TEST_CASE("check-config: valid file exits 0, a bad one prints every error and ex
   const auto bad = run_command(kMarkcell + " check-config " + file);
   INFO(bad.output);
   CHECK(bad.exit_code == 2);
-  CHECK(bad.output.find(file + ":10:17: executive.base_tick_us: expected an integer in [50, 1000000], got 0") != std::string::npos);
+  CHECK(bad.output.find(file + ":11:17: executive.base_tick_us: expected an integer in [50, 1000000], got 0") != std::string::npos);
   CHECK(bad.output.find("devices.arm.serial.baud: baud 115201 is not a termios rate") != std::string::npos);
   CHECK(bad.output.find("2 error(s) in " + file) != std::string::npos);
 }

@@ -261,3 +261,13 @@ TEST_CASE_METHOD(Fixture, "base_calibration: poses and the board's mounting as s
   CHECK(few[0] == file() + ":" + std::to_string(lines + 2) +
                       ":10: base_calibration.poses: expected a list of 6 to 200 poses, got a sequence of 1");
 }
+
+TEST_CASE_METHOD(Fixture, "the record folder: resolved against the config's folder, it must exist") {
+  std::filesystem::create_directories(dir.path() / "records");
+  const auto ok = load_config_text(replace(kValid, "name: test-cell", "name: test-cell\n  record_folder: records"), file(),
+                                   task_catalog());
+  CHECK(ok.record_folder == (dir.path() / "records").string());
+  const auto m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  record_folder: nowhere")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0].find("cell.record_folder: folder '" + (dir.path() / "nowhere").string() + "' does not exist") != std::string::npos);
+}

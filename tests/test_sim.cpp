@@ -18,6 +18,7 @@
 #include "markcell/host/config.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/vision/frame_source.hpp"
@@ -335,4 +336,56 @@ TEST_CASE("defects the arm cannot reach are planned out at once, reported with t
   CHECK(json_number(json, "defects", "skipped") == 3);
   CHECK(json.find("planned out: not within the arm's reach in its turn (the plan's verdict says why)") != std::string::npos);
   CHECK(read_file(out + "/commands.log").find("valve open") == std::string::npos);
+}
+
+TEST_CASE("the record drop folder: records taken in name order, bad ones and duplicates rejected with the reason and kept") {
+  const auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  test::TempDir dir;
+  const std::string good = read_file(sim_dir() + "/recording/inspection.yaml");
+  const auto drop = dir.path() / "drop";
+  std::filesystem::create_directories(drop);
+  host::RecordFolder folder(drop.string(), cfg.panel_types);
+  std::vector<std::string> offered;
+  bool busy = false;
+  const auto offer = [&](const control::PanelJob& job) {
+    if (busy) return false;
+    offered.emplace_back(job.panel_id.view());
+    return true;
+  };
+  CHECK_FALSE(folder.poll(offer).has_value());  // empty
+
+  std::ofstream((drop / "0002.yaml").string()) << good;
+  std::ofstream((drop / "0001.yaml.part").string()) << good.substr(0, good.size() / 2);  // still being written
+  busy = true;
+  CHECK_FALSE(folder.poll(offer).has_value());  // the sequence holds a record: it waits
+  CHECK(std::filesystem::exists(drop / "0002.yaml"));
+  busy = false;
+  auto ev = folder.poll(offer);
+  REQUIRE(ev.has_value());
+  CHECK(ev->kind == host::RecordEvent::Kind::kAccepted);
+  CHECK(ev->file == (drop / "accepted" / "0002.yaml").string());
+  REQUIRE(offered.size() == 1);
+  CHECK(std::filesystem::exists(drop / "accepted" / "0002.yaml"));
+
+  // The same panel again, and a record with a broken field.
+  std::ofstream((drop / "0003.yaml").string()) << good;
+  std::string bad = good;
+  const auto units = bad.find("units: m");
+  REQUIRE(units != std::string::npos);
+  bad.replace(units, 8, "units: mm");
+  std::ofstream((drop / "0004.yaml").string()) << bad;
+  ev = folder.poll(offer);
+  REQUIRE(ev.has_value());
+  CHECK(ev->kind == host::RecordEvent::Kind::kRejected);
+  CHECK(ev->reason.find("0003.yaml: panel_id: '" + offered[0] + "' was already received (a duplicate record)") != std::string::npos);
+  CHECK(read_file((drop / "rejected" / "0003.yaml.reason").string()) == ev->reason + "\n");
+  ev = folder.poll(offer);
+  REQUIRE(ev.has_value());
+  CHECK(ev->kind == host::RecordEvent::Kind::kRejected);
+  INFO(ev->reason);
+  CHECK(ev->reason.rfind((drop / "0004.yaml").string() + ":", 0) == 0);
+  CHECK(ev->reason.find("units") != std::string::npos);
+  CHECK(std::filesystem::exists(drop / "rejected" / "0004.yaml"));
+  CHECK(offered.size() == 1);  // neither was offered
+  CHECK_FALSE(folder.poll(offer).has_value());  // the .part file is not a record
 }

@@ -722,7 +722,7 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
                       "vision", "marking", "base_calibration"}))
     throw ConfigInvalid(errors);
 
-  if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name", "results_file"})) {
+  if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder"})) {
     r.text(*cell, "cell", "name", cfg.name);
     std::string results;
     r.text(*cell, "cell", "results_file", results, false, 4096);
@@ -734,6 +734,17 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
       if (!std::filesystem::is_directory(p.parent_path(), ec))
         r.error((*cell)["results_file"], "cell.results_file", "folder '" + p.parent_path().string() + "' does not exist");
       cfg.results_file = p.string();
+    }
+    std::string records;
+    r.text(*cell, "cell", "record_folder", records, false, 4096);
+    if (!records.empty()) {
+      std::filesystem::path p(records);
+      if (p.is_relative()) p = std::filesystem::path(path).parent_path() / p;
+      p = p.lexically_normal();
+      std::error_code ec;
+      if (!std::filesystem::is_directory(p, ec))
+        r.error((*cell)["record_folder"], "cell.record_folder", "folder '" + p.string() + "' does not exist");
+      cfg.record_folder = p.string();
     }
   }
   std::vector<YAML::Mark> task_marks;

@@ -16,6 +16,8 @@
 #include "markcell/host/capacity.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/host/json.hpp"
+#include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/host/rig/replay.hpp"
 #include "markcell/host/rig/scenario.hpp"
@@ -121,6 +123,30 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     written = r.serial;
   };
 
+  // Inspection records from the drop folder, one at a time into the marking sequence; a
+  // rejected one is logged and recorded in the results file with its reason.
+  std::unique_ptr<RecordFolder> records;
+  if (!config.record_folder.empty() && cell.marking() != nullptr)
+    records = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
+  const auto take_records = [&] {
+    if (!records) return;
+    const auto ev = records->poll([&](const control::PanelJob& job) { return cell.marking()->offer_job(job); });
+    if (!ev) return;
+    if (ev->kind == RecordEvent::Kind::kAccepted) {
+      std::fprintf(stderr, "<6>markcell: record panel=%s accepted (%s)\n", ev->panel_id.c_str(), ev->file.c_str());
+      return;
+    }
+    std::fprintf(stderr, "<3>markcell: record rejected: %s (moved to %s)\n", ev->reason.c_str(), ev->file.c_str());
+    if (results) {
+      try {
+        results->append("{\"cell\": " + json_quote(config.name) + ", \"record\": " + json_quote(ev->file) +
+                        ", \"panel_id\": " + json_quote(ev->panel_id) + ", \"rejected\": " + json_quote(ev->reason) + "}");
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "<3>markcell: %s\n", e.what());
+      }
+    }
+  };
+
   std::string stop_reason = "duration elapsed";
   if (simulated) {
     const Nanos end = cell.sim_clock()->global_now() + static_cast<Nanos>(seconds * 1e9);
@@ -131,12 +157,14 @@ int run_command(const std::string& file, const std::string& clock_name, double s
         break;
       }
       collect();
+      take_records();
     }
   } else {
     const Nanos end = seconds > 0 ? monotonic_now() + static_cast<Nanos>(seconds * 1e9) : 0;
     for (;;) {
       // Bounded wait: wakes at once on a signal, at least every second otherwise.
       collect();
+      take_records();
       Nanos wait = seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
       if (wait <= 0) break;
       if (wait > millis(50)) wait = millis(50);  // results are written within 50 ms of a panel's end

@@ -191,6 +191,7 @@ struct CellConfig {
   std::string file;     // the YAML file it came from
   std::string name;
   std::string results_file;  // every panel's result appended and synced here (empty: none); absolute
+  std::string record_folder;  // inspection records arrive here (empty: none); absolute
   control::ExecutiveSpec executive;
   WatchdogConfig watchdog;
   SafeStopConfig safe_stop;

@@ -237,6 +237,11 @@ TEST_CASE("scenarios: every name is known, unknown names are listed, drops are d
   for (const auto& name : scenario_names()) {
     const Scenario s = make_scenario(name, 3);
     CHECK(s.name == name);
+    if (s.board_only) {  // calibration-board: a camera pose to find, no panel
+      CHECK(s.defects.empty());
+      CHECK(s.X_CamRnominal_CamR.translation().norm() > 0.001);
+      continue;
+    }
     CHECK_FALSE(s.defects.empty());
     for (const auto& d : s.defects) CHECK(markcell::vision::panel_shape(s.panel_type).solid(d.x, d.y));
   }
@@ -244,7 +249,7 @@ TEST_CASE("scenarios: every name is known, unknown names are listed, drops are d
   CHECK(make_scenario("paper-fender", 1).defects.size() == 4);
   CHECK_THROWS_WITH(make_scenario("paper-dor", 1),
                     "unknown scenario 'paper-dor' (known: paper-door, paper-fender, paper-curved, line-fast, "
-                    "occlusion-person, frame-drops, nine-defects)");
+                    "occlusion-person, frame-drops, nine-defects, calibration-board)");
   const Scenario drops = make_scenario("frame-drops", 11);
   int dropped = 0;
   for (std::uint64_t i = 0; i < 20'000; ++i) dropped += frame_dropped(drops, i) ? 1 : 0;

@@ -389,3 +389,37 @@ TEST_CASE("the record drop folder: records taken in name order, bad ones and dup
   CHECK(offered.size() == 1);  // neither was offered
   CHECK_FALSE(folder.poll(offer).has_value());  // the .part file is not a record
 }
+
+TEST_CASE("a panel without an inspection record: PLC fault after the record timeout, the arm never moves, the result says so") {
+  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  cfg.watchdog.systemd = false;
+  cfg.executive.lock_memory = false;
+  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  REQUIRE(cfg.marking.record_timeout == seconds(5));
+  host::Cell cell(cfg, host::ClockKind::kSimulated);
+  cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(std::vector<vision::MemoryFrameSource::Pair>{}, cfg.cameras.latency));
+  cell.start();
+  control::SimClock& clock = *cell.sim_clock();
+  Nanos t = 0;
+  clock.run_until(t += seconds(1));
+  const auto home = cell.sim_arm()->model().tool().position;
+  cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), true);
+  clock.run_until(t += seconds(4));
+  CHECK(cell.marking()->panels_completed() == 0);  // still within the timeout
+  clock.run_until(t += seconds(2));
+  REQUIRE(cell.marking()->panels_completed() == 1);
+  bool fault = false, done = true;
+  cell.gpio().get(cell.gpio_line(host::LineRole::kPlcFault), fault);
+  cell.gpio().get(cell.gpio_line(host::LineRole::kPlcDone), done);
+  CHECK(fault);
+  CHECK_FALSE(done);
+  cell.marking()->results().update();
+  const control::PanelResult r = cell.marking()->results().read();
+  CHECK(r.fault);
+  CHECK(r.reason.view() == "panel present without an inspection record");
+  CHECK(r.panel_id.view() == "(no record)");
+  CHECK(r.defect_count == 0);
+  CHECK(cell.sim_arm()->model().tool().position == home);
+  CHECK(cell.sim_spray_count() == 0);
+  cell.shutdown(control::FaultCode::kShutdown, "test", "done");
+}

@@ -78,7 +78,10 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
   const PlcInputs& plc = plc_io_.inputs();
   switch (state_) {
     case MarkingState::kIdle:
-      if (plc.panel_present && plc.cycle_enable && job_waiting_.load(std::memory_order_acquire)) start_panel(now);
+      if (!plc.panel_present || !plc.cycle_enable) present_since_ = -1;
+      else if (job_waiting_.load(std::memory_order_acquire)) start_panel(now);
+      else if (present_since_ < 0) present_since_ = now;
+      else if (now - present_since_ > params_.record_timeout) panel_without_record(now);
       break;
     case MarkingState::kAcquire:
       if (!plc.panel_present) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
@@ -137,6 +140,7 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
 }
 
 void MarkingSequence::start_panel(Nanos now) {
+  present_since_ = -1;
   job_ = mailbox_;
   job_waiting_.store(false, std::memory_order_release);
   result_ = PanelResult{};
@@ -348,6 +352,20 @@ void MarkingSequence::fail_panel(Nanos now, std::string_view reason, SkipReason 
   state_ = MarkingState::kHome;
   home_sent_ = false;
   deadline_ = now + params_.home_timeout;
+}
+
+void MarkingSequence::panel_without_record(Nanos now) {
+  // The panel goes by unmarked: the arm never moved, the PLC hears fault, and the result
+  // records it (the inspection station's record may still come: it waits for the next).
+  result_ = PanelResult{};
+  result_.serial = completed_.load(std::memory_order_relaxed) + 1;
+  result_.panel_id.assign("(no record)");
+  result_.started = present_since_;
+  result_.fault = true;
+  result_.reason.assign("panel present without an inspection record");
+  present_since_ = -1;
+  job_ = PanelJob{};
+  finish_panel(now);
 }
 
 void MarkingSequence::finish_panel(Nanos now) {

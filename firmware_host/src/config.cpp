@@ -591,13 +591,16 @@ void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
   const std::string P = "marking";
   if (!r.map(node, P, {"standoff_m", "command_lead_ms", "settle_mm", "settle_deg", "settle_ms", "max_prediction_age_ms",
                        "defect_timeout_s", "acquire_timeout_s", "home_timeout_s", "predictor", "intercalibration_limit_mm",
-                       "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm", "plan_settle_ms"}))
+                       "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm", "plan_settle_ms", "record_timeout_s"}))
     return;
   r.number(node, P, "standoff_m", m.standoff_m, 0.01, 1.0, false);
   // Absent keys keep the defaults of MarkingConfig.
   long long lead = m.command_lead / 1'000'000, settle = m.settle / 1'000'000, age = m.max_prediction_age / 1'000'000;
   long long plan_settle = m.plan_settle / 1'000'000;
   r.integer(node, P, "plan_settle_ms", plan_settle, 0, 60'000, false);
+  double record = to_seconds(m.record_timeout);
+  r.number(node, P, "record_timeout_s", record, 0.1, 600.0, false);
+  m.record_timeout = static_cast<Nanos>(record * 1e9);
   double defect = to_seconds(m.defect_timeout), acquire = to_seconds(m.acquire_timeout), home = to_seconds(m.home_timeout);
   r.integer(node, P, "command_lead_ms", lead, 0, 1000, false);
   r.number(node, P, "settle_mm", m.settle_mm, 0.05, 50.0, false);

@@ -105,6 +105,9 @@ struct MarkingParams {
   Nanos defect_timeout = seconds(6);
   Nanos acquire_timeout = seconds(10);
   Nanos home_timeout = seconds(10);
+  // A panel present (cycle enabled) this long with no inspection record: PLC fault, the
+  // panel's result says so, nothing moves.
+  Nanos record_timeout = seconds(5);
   // With a results file: the PLC hears done (or fault) only once the panel's result is
   // written and synced (acknowledge_result); past this, fault.
   bool require_result_ack = false;
@@ -172,6 +175,7 @@ class MarkingSequence {
   void approach(Nanos now, const TaskContext& ctx);
   void finish_panel(Nanos now);
   void plan_panel(Nanos now);
+  void panel_without_record(Nanos now);
   void report_to_plc();
   void fail_panel(Nanos now, std::string_view reason, SkipReason skip);
   void set_plc(int line, bool value);
@@ -208,6 +212,7 @@ class MarkingSequence {
   bool home_sent_ = false;
   Nanos home_sent_at_ = 0;
   int poses_since_intercal_ = 0;
+  Nanos present_since_ = -1;  // panel present (cycle enabled) in idle without a record
   bool planned_ = false;
   std::array<PlanDefect, kMaxDefects> plan_in_{};
   std::array<PlanEntry, kMaxDefects> plan_out_{};

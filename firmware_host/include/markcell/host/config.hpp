@@ -149,7 +149,8 @@ struct VisionConfig {
 // The marking sequence (control::MarkingParams), as configured.
 struct MarkingConfig {
   double standoff_m = 0.20;
-  Nanos plan_settle = millis(150);  // the plan's time from arriving on a defect to its pulse
+  Nanos plan_settle = millis(150);
+  Nanos record_timeout = seconds(5);  // panel present this long without a record: PLC fault  // the plan's time from arriving on a defect to its pulse
   Nanos command_lead = millis(35);
   double settle_mm = 1.5;
   double settle_deg = 0.6;

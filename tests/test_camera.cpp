@@ -17,6 +17,10 @@
 #include <thread>
 
 #include "markcell/drivers/camera.hpp"
+#include "markcell/host/cell.hpp"
+#include "markcell/host/config.hpp"
+#include "markcell/host/record.hpp"
+#include "markcell/vision/recording.hpp"
 #include "alloc_guard.hpp"
 #include "test_files.hpp"
 
@@ -149,6 +153,35 @@ TEST_CASE("a stereo pair of fake GigE Vision cameras: frames, a killed camera, a
   CHECK(pairs >= 4);  // a first frame may be left over from before the reconnection
   left.deactivate();
   right.deactivate();
+}
+
+TEST_CASE("markcell record: pairs from the fake stereo pair written as a recording the rig's reader opens") {
+  FakeCamera fake_left("127.0.0.1", "MCL01");
+  FakeCamera fake_right("127.0.0.2", "MCR01");
+  auto config = host::load_config(test::source_path("config/cell.example.yaml"), host::task_catalog());
+  config.cameras.trigger = host::CameraTrigger::kSoftware;
+  test::TempDir dir;
+  host::RecordOptions o;
+  o.out = (dir.path() / "rec").string();
+  o.panel_type = "door";
+  o.frames = 12;
+  o.left_id = "127.0.0.1";
+  o.right_id = "127.0.0.2";
+  const host::RecordSummary r = host::record_stereo(config, o, nullptr);
+  CHECK(r.pairs == 12);
+  const auto rec = vision::Recording::open(o.out);
+  CHECK(rec.index_problems().empty());
+  REQUIRE(rec.size() == 12);
+  CHECK(rec.manifest().panel_type == "door");
+  CHECK(rec.manifest().image_width == 640);
+  CHECK(rec.entry(0).time == 0);
+  for (std::size_t i = 1; i < rec.size(); ++i) CHECK(rec.entry(i).time > rec.entry(i - 1).time);
+  const auto f = rec.read(5);
+  CHECK(f.left.cols == 640);
+  CHECK(f.right.rows == 480);
+  CHECK(std::filesystem::exists(rec.calibration_path()));
+  // A second run into the same folder refuses to overwrite it.
+  CHECK_THROWS_WITH(host::record_stereo(config, o, nullptr), Catch::Contains("already holds a recording"));
 }
 
 TEST_CASE("a camera that is not there is a clear error naming it") {

@@ -12,7 +12,7 @@ const std::string kMarkcell = MARKCELL_BINARY;
 }
 
 TEST_CASE("every subcommand has --help") {
-  for (const char* sub : {"check-config", "run", "sim", "replay", "select-mfs", "calibrate-stereo", "calibrate-base", "capacity", "bench", "bench loop", "bench vision"}) {
+  for (const char* sub : {"check-config", "run", "sim", "replay", "select-mfs", "calibrate-stereo", "calibrate-base", "capacity", "record", "bench", "bench loop", "bench vision"}) {
     const auto r = run_command(kMarkcell + " " + sub + " --help");
     INFO(sub << ": " << r.output);
     CHECK(r.exit_code == 0);

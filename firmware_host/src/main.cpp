@@ -17,6 +17,7 @@
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/json.hpp"
+#include "markcell/host/record.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/host/rig/replay.hpp"
@@ -420,6 +421,16 @@ int main(int argc, char** argv) {
   calibrate_base->add_option("--images", base_images, "Also save the stereo pairs taken into this folder");
   calibrate_base->add_option("--seed", base_seed, "The rig's calibration-board scenario seed (simulated arm only)");
 
+  std::string record_config = "config/cell.example.yaml";
+  RecordOptions record_options;
+  auto* record = app.add_subcommand("record", "Write live stereo pairs from the configured Aravis cameras as a recording (vision/RECORDING.md)");
+  record->add_option("--config,-c", record_config, "Cell configuration (devices.cameras: ids, size, rate, trigger; calibration.stereo)");
+  record->add_option("--out,-o", record_options.out, "Recording folder to write (must not hold a recording)")->required();
+  record->add_option("--frames,-n", record_options.frames, "Stereo pairs to record")->check(CLI::Range(1, 1000000));
+  record->add_option("--panel", record_options.panel_type, "Panel type recorded (the manifest's panel_type)")->required();
+  record->add_option("--left", record_options.left_id, "Left camera id (default: the configuration's)");
+  record->add_option("--right", record_options.right_id, "Right camera id (default: the configuration's)");
+
   std::string capacity_config = "config/cell.example.yaml";
   std::vector<double> capacity_speeds{0.014, 0.15, 0.30, 0.60}, capacity_spacings{0.05, 0.10, 0.20, 0.30};
   double capacity_depth = 3.1, capacity_length = 1.0;
@@ -491,6 +502,14 @@ int main(int argc, char** argv) {
   try {
     if (*check) return check_config_command(check_file);
     if (*calibrate) return calibrate_stereo_command(cal_images, cal_board, cal_square, cal_out);
+    if (*record) {
+      const auto config = load_or_report(record_config);
+      if (!config) return kExitConfig;
+      const RecordSummary r = record_stereo(*config, record_options, &std::cerr);
+      std::printf("recorded %d stereo pairs into %s (%d waits without a pair, %llu unpaired frames dropped)\n", r.pairs,
+                  record_options.out.c_str(), r.timeouts, static_cast<unsigned long long>(r.unpaired));
+      return r.pairs == record_options.frames ? 0 : kExitRuntime;
+    }
     if (*capacity) {
       const auto config = load_or_report(capacity_config);
       if (!config) return kExitConfig;

@@ -12,54 +12,17 @@
 
 #include "markcell/control/executive.hpp"
 #include "markcell/host/sd_notify.hpp"
+#include "notify_socket.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
 using namespace markcell::control;
 
-namespace {
-
-// A datagram socket standing in for systemd's notify socket.
-class NotifyListener {
- public:
-  explicit NotifyListener(const std::string& path) {
-    fd_ = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-    REQUIRE(fd_ >= 0);
-    sockaddr_un addr{};
-    addr.sun_family = AF_UNIX;
-    REQUIRE(path.size() < sizeof(addr.sun_path));
-    path.copy(addr.sun_path, path.size());
-    REQUIRE(bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0);
-    timeval tv{0, 20'000};
-    setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
-  }
-  ~NotifyListener() { close(fd_); }
-  struct Message {
-    Nanos time;
-    std::string text;
-  };
-  // Collects every datagram that arrives within `duration`.
-  template <typename Done = bool (*)()>
-  void collect(std::chrono::milliseconds duration, Done done = [] { return false; }) {
-    const Nanos end = monotonic_now() + duration.count() * kNanosPerMilli;
-    char buf[512];
-    while (monotonic_now() < end && !done()) {
-      const auto n = recv(fd_, buf, sizeof(buf), 0);
-      if (n > 0) messages.push_back({monotonic_now(), std::string(buf, static_cast<std::size_t>(n))});
-    }
-  }
-  std::vector<Message> messages;
-
- private:
-  int fd_ = -1;
-};
-
-}  // namespace
 
 TEST_CASE("READY=1, WATCHDOG=1 at the interval while the lanes tick, none once a lane stalls, STOPPING=1") {
   test::TempDir dir;
   const std::string socket_path = (dir.path() / "notify").string();
-  NotifyListener listener(socket_path);
+  test::NotifySocket listener(socket_path);
   setenv("NOTIFY_SOCKET", socket_path.c_str(), 1);
   setenv("WATCHDOG_USEC", "200000", 1);  // WatchdogSec=200ms: feed every 100 ms
   unsetenv("WATCHDOG_PID");
@@ -90,14 +53,14 @@ TEST_CASE("READY=1, WATCHDOG=1 at the interval while the lanes tick, none once a
   exec.add_watchdog(notifier);
   exec.start();
   notifier.ready();
-  listener.collect(std::chrono::milliseconds(700));
+  listener.collect(millis(700));
   blocker.block = true;
-  listener.collect(std::chrono::milliseconds(1000), [&] { return safe.done(); });
-  listener.collect(std::chrono::milliseconds(60));  // what was already on its way
+  listener.collect(millis(1000), [&] { return safe.done(); });
+  listener.collect(millis(60));  // what was already on its way
   const std::size_t at_stall = listener.messages.size();
-  listener.collect(std::chrono::milliseconds(500));
+  listener.collect(millis(500));
   notifier.stopping();
-  listener.collect(std::chrono::milliseconds(50));
+  listener.collect(millis(50));
   exec.stop();
   unsetenv("NOTIFY_SOCKET");
   unsetenv("WATCHDOG_USEC");

@@ -4,8 +4,6 @@
 // SIGTERM.
 #include <signal.h>
 #include <spawn.h>
-#include <sys/socket.h>
-#include <sys/un.h>
 #include <fcntl.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -15,62 +13,18 @@
 #include <vector>
 
 #include "markcell/common/time.hpp"
+#include "notify_socket.hpp"
 #include "test_files.hpp"
 
 extern char** environ;
 
 using namespace markcell;
 
-namespace {
-
-struct Message {
-  Nanos time;
-  std::string text;
-};
-
-class NotifySocket {
- public:
-  explicit NotifySocket(const std::string& path) {
-    fd_ = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-    REQUIRE(fd_ >= 0);
-    sockaddr_un addr{};
-    addr.sun_family = AF_UNIX;
-    REQUIRE(path.size() < sizeof(addr.sun_path));
-    path.copy(addr.sun_path, path.size());
-    REQUIRE(bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0);
-    timeval tv{0, 50'000};
-    setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
-  }
-  ~NotifySocket() { close(fd_); }
-  // Collects datagrams until `until` returns true or `timeout` passes; true if it did.
-  template <typename Until>
-  bool collect(Nanos timeout, Until until) {
-    const Nanos end = monotonic_now() + timeout;
-    char buf[512];
-    while (monotonic_now() < end) {
-      if (until()) return true;
-      const auto n = recv(fd_, buf, sizeof(buf), 0);
-      if (n > 0) messages.push_back({monotonic_now(), std::string(buf, static_cast<std::size_t>(n))});
-    }
-    return until();
-  }
-  int count(const std::string& text) const {
-    int n = 0;
-    for (const auto& m : messages) n += m.text == text ? 1 : 0;
-    return n;
-  }
-  std::vector<Message> messages;
-
- private:
-  int fd_ = -1;
-};
-
-}  // namespace
 
 TEST_CASE("markcell run under systemd's notify protocol: READY=1, the watchdog fed, STOPPING=1 and exit 0 on SIGTERM") {
   test::TempDir dir;
   const std::string socket_path = (dir.path() / "notify").string();
-  NotifySocket notify(socket_path);
+  test::NotifySocket notify(socket_path);
   const std::string log = (dir.path() / "stderr").string();
 
   std::vector<std::string> env_strings;

@@ -15,6 +15,7 @@
 #include "markcell/drivers/can_arm_link.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/json.hpp"
+#include "markcell/host/record.hpp"
 #include "markcell/vision/geometry.hpp"
 #include "markcell/vision/render.hpp"
 
@@ -351,13 +352,7 @@ class LiveDevices final : public BaseCalibrationDevices {
  private:
   // calibrate-base triggers both cameras by software: it needs one pair per pose.
   static drivers::CameraSettings settings(const CameraConfig& c, const std::string& id) {
-    drivers::CameraSettings s;
-    s.id = id;
-    s.width = c.width;
-    s.height = c.height;
-    s.fps = c.fps;
-    s.exposure_us = c.exposure_us;
-    s.gain_db = c.gain_db;
+    drivers::CameraSettings s = camera_settings(c, id);
     s.trigger = drivers::TriggerMode::kSoftware;
     return s;
   }

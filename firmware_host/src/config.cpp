@@ -727,28 +727,22 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
 
   if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder"})) {
     r.text(*cell, "cell", "name", cfg.name);
-    std::string results;
-    r.text(*cell, "cell", "results_file", results, false, 4096);
-    if (!results.empty()) {
-      std::filesystem::path p(results);
+    // A path resolved against the config file's folder; `folder` must exist.
+    const auto path_in = [&](const char* key, std::string& out, const auto& folder_of) {
+      std::string raw;
+      r.text(*cell, "cell", key, raw, false, 4096);
+      if (raw.empty()) return;
+      std::filesystem::path p(raw);
       if (p.is_relative()) p = std::filesystem::path(path).parent_path() / p;
       p = p.lexically_normal();
+      const std::filesystem::path folder = folder_of(p);
       std::error_code ec;
-      if (!std::filesystem::is_directory(p.parent_path(), ec))
-        r.error((*cell)["results_file"], "cell.results_file", "folder '" + p.parent_path().string() + "' does not exist");
-      cfg.results_file = p.string();
-    }
-    std::string records;
-    r.text(*cell, "cell", "record_folder", records, false, 4096);
-    if (!records.empty()) {
-      std::filesystem::path p(records);
-      if (p.is_relative()) p = std::filesystem::path(path).parent_path() / p;
-      p = p.lexically_normal();
-      std::error_code ec;
-      if (!std::filesystem::is_directory(p, ec))
-        r.error((*cell)["record_folder"], "cell.record_folder", "folder '" + p.string() + "' does not exist");
-      cfg.record_folder = p.string();
-    }
+      if (!std::filesystem::is_directory(folder, ec))
+        r.error((*cell)[key], std::string("cell.") + key, "folder '" + folder.string() + "' does not exist");
+      out = p.string();
+    };
+    path_in("results_file", cfg.results_file, [](const std::filesystem::path& p) { return p.parent_path(); });
+    path_in("record_folder", cfg.record_folder, [](const std::filesystem::path& p) { return p; });
   }
   std::vector<YAML::Mark> task_marks;
   if (const auto e = r.child(root, "", "executive", true)) read_executive(r, *e, known_tasks, cfg, task_marks);

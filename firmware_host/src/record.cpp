@@ -11,7 +11,6 @@
 
 namespace markcell::host {
 
-namespace {
 drivers::CameraSettings camera_settings(const CameraConfig& c, const std::string& id) {
   drivers::CameraSettings s;
   s.id = id;
@@ -23,7 +22,6 @@ drivers::CameraSettings camera_settings(const CameraConfig& c, const std::string
   s.trigger = c.trigger == CameraTrigger::kSoftware ? drivers::TriggerMode::kSoftware : drivers::TriggerMode::kHardware;
   return s;
 }
-}  // namespace
 
 RecordSummary record_stereo(const CellConfig& config, const RecordOptions& o, std::ostream* progress) {
   const std::string left_id = o.left_id.empty() ? config.cameras.left_id : o.left_id;

@@ -5,6 +5,7 @@
 #include <iosfwd>
 #include <string>
 
+#include "markcell/drivers/camera.hpp"
 #include "markcell/host/config.hpp"
 
 namespace markcell::host {
@@ -21,6 +22,9 @@ struct RecordSummary {
   int timeouts = 0;         // waits with no pair (each bounded)
   std::uint64_t unpaired = 0;  // frames dropped for want of a partner
 };
+
+// One camera's driver settings from the configuration's cameras section.
+drivers::CameraSettings camera_settings(const CameraConfig& cameras, const std::string& id);
 
 // Throws std::runtime_error naming the camera or file when it cannot go on (a camera
 // that cannot be opened or is lost, a folder that already holds a recording).

@@ -1,0 +1,61 @@
+#pragma once
+// A datagram socket standing in for systemd's notify socket (NOTIFY_SOCKET): the tests
+// of the notify protocol, in-process and of the real binary, collect what arrives.
+#include <sys/socket.h>
+#include <sys/un.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <string>
+#include <vector>
+
+#include "markcell/common/time.hpp"
+
+namespace markcell::test {
+
+class NotifySocket {
+ public:
+  explicit NotifySocket(const std::string& path) {
+    fd_ = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+    REQUIRE(fd_ >= 0);
+    sockaddr_un addr{};
+    addr.sun_family = AF_UNIX;
+    REQUIRE(path.size() < sizeof(addr.sun_path));
+    path.copy(addr.sun_path, path.size());
+    REQUIRE(bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0);
+    timeval tv{0, 20'000};
+    setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
+  }
+  ~NotifySocket() { close(fd_); }
+  NotifySocket(const NotifySocket&) = delete;
+  NotifySocket& operator=(const NotifySocket&) = delete;
+  struct Message {
+    Nanos time;
+    std::string text;
+  };
+  // Collects every datagram until `until()` holds or `timeout` passes; returns until().
+  template <typename Until>
+  bool collect(Nanos timeout, Until until) {
+    const Nanos end = monotonic_now() + timeout;
+    char buf[512];
+    while (monotonic_now() < end && !until()) {
+      const auto n = recv(fd_, buf, sizeof(buf), 0);
+      if (n > 0) messages.push_back({monotonic_now(), std::string(buf, static_cast<std::size_t>(n))});
+    }
+    return until();
+  }
+  void collect(Nanos duration) {
+    collect(duration, [] { return false; });
+  }
+  int count(const std::string& text) const {
+    int n = 0;
+    for (const auto& m : messages) n += m.text == text ? 1 : 0;
+    return n;
+  }
+  std::vector<Message> messages;
+
+ private:
+  int fd_ = -1;
+};
+
+}  // namespace markcell::test

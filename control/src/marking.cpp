@@ -33,7 +33,6 @@ std::string_view to_string(MarkingState s) {
   return "?";
 }
 
-
 MarkingSequence::MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve,
                                  drivers::GpioLines& lines, const PlcLineMap& plc, const PlcIo& plc_io,
                                  TripleBuffer<vision::PoseEstimate>& estimates,
@@ -364,7 +363,8 @@ void MarkingSequence::panel_without_record(Nanos now) {
   result_.fault = true;
   result_.reason.assign("panel present without an inspection record");
   present_since_ = -1;
-  job_ = PanelJob{};
+  job_.defect_count = 0;  // (no copy of a whole empty job on the control lane)
+  job_.mf_count = 0;
   finish_panel(now);
 }
 

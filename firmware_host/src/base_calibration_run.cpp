@@ -96,8 +96,11 @@ BaseCalibrationRun run_base_calibration(BaseCalibrationDevices& devices, const v
 
   arm.activate(devices.now());
   for (Nanos waited = 0; arm.status() != drivers::ArmLinkStatus::kOk; waited += kStep) {
-    if (waited > kLinkUpTimeout || drivers::is_fault(arm.status()))
-      throw std::runtime_error("arm link: no state from the arm within 3 s (" + status_text(arm.status()) + ")");
+    if (waited > kLinkUpTimeout || drivers::is_fault(arm.status())) {
+      const std::string why = status_text(arm.status());
+      arm.deactivate();
+      throw std::runtime_error("arm link: no state from the arm within 3 s (" + why + ")");
+    }
     devices.wait(kStep);
   }
   const auto fail = [&](const std::string& what) {

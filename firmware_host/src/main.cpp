@@ -131,7 +131,13 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     records = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
   const auto take_records = [&] {
     if (!records) return;
-    const auto ev = records->poll([&](const control::PanelJob& job) { return cell.marking()->offer_job(job); });
+    std::optional<RecordEvent> ev;
+    try {
+      ev = records->poll([&](const control::PanelJob& job) { return cell.marking()->offer_job(job); });
+    } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
+      std::fprintf(stderr, "<3>markcell: record folder %s: %s\n", records->folder().c_str(), e.what());
+      return;
+    }
     if (!ev) return;
     if (ev->kind == RecordEvent::Kind::kAccepted) {
       std::fprintf(stderr, "<6>markcell: record panel=%s accepted (%s)\n", ev->panel_id.c_str(), ev->file.c_str());

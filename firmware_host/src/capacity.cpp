@@ -1,6 +1,5 @@
 #include "markcell/host/capacity.hpp"
 
-#include <array>
 #include <cstdio>
 #include <vector>
 

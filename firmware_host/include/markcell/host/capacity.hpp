@@ -9,6 +9,7 @@
 // arm's reach and the arm is at home. The arm marks them downstream first, waiting for
 // those the line has yet to bring within reach.
 #include <string>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -16,7 +17,7 @@
 
 namespace markcell::host {
 
-inline constexpr int kCapacityMaxDefects = 200;
+inline constexpr int kCapacityMaxDefects = 200;  // the longest row it plans
 
 struct Capacity {
   double speed = 0;              // m/s

@@ -85,7 +85,14 @@ int run_command(const std::string& file, const std::string& clock_name, double s
   sigset_t signals = stop_signals();
 
   Cell cell(config, simulated ? ClockKind::kSimulated : ClockKind::kReal);
+  // The results file and the record folder are opened before anything moves: a cell that
+  // could not record its results must not start.
+  std::unique_ptr<ResultsFile> results;
+  std::unique_ptr<RecordFolder> records;
   try {
+    if (!config.results_file.empty() && cell.marking() != nullptr) results = std::make_unique<ResultsFile>(config.results_file);
+    if (!config.record_folder.empty() && cell.marking() != nullptr)
+      records = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
     cell.start();
   } catch (const std::exception& e) {
     std::cerr << "markcell: start-up failed: " << e.what() << "\n";
@@ -98,9 +105,7 @@ int run_command(const std::string& file, const std::string& clock_name, double s
 
   // Each finished panel: its result appended and synced, then acknowledged so that the
   // marking sequence tells the PLC; one journald line per panel.
-  std::unique_ptr<ResultsFile> results;
   std::uint64_t written = 0;
-  if (!config.results_file.empty() && cell.marking() != nullptr) results = std::make_unique<ResultsFile>(config.results_file);
   const auto collect = [&] {
     control::MarkingSequence* m = cell.marking();
     if (m == nullptr || m->panels_completed() == written) return;
@@ -126,9 +131,6 @@ int run_command(const std::string& file, const std::string& clock_name, double s
 
   // Inspection records from the drop folder, one at a time into the marking sequence; a
   // rejected one is logged and recorded in the results file with its reason.
-  std::unique_ptr<RecordFolder> records;
-  if (!config.record_folder.empty() && cell.marking() != nullptr)
-    records = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
   const auto take_records = [&] {
     if (!records) return;
     std::optional<RecordEvent> ev;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace markcell::control {
 
@@ -25,8 +26,23 @@ double move_seconds(const ArmTimingModel& arm, double d) {
 
 namespace {
 constexpr int kInterceptRounds = 30;
-constexpr double kReachStep = 0.02;  // s, search for the time a defect enters reach
 }  // namespace
+
+bool reach_interval(const Eigen::Vector3d& p0, const Eigen::Vector3d& v, double reach, double& t_in, double& t_out) {
+  // |p0 + v t|^2 = reach^2: a t^2 + b t + c = 0.
+  const double a = v.squaredNorm(), b = 2.0 * p0.dot(v), c = p0.squaredNorm() - reach * reach;
+  if (a < 1e-18) {  // standing still: always or never
+    t_in = -std::numeric_limits<double>::infinity();
+    t_out = std::numeric_limits<double>::infinity();
+    return c <= 0;
+  }
+  const double disc = b * b - 4.0 * a * c;
+  if (disc < 0) return false;
+  const double root = std::sqrt(disc);
+  t_in = (-b - root) / (2.0 * a);
+  t_out = (-b + root) / (2.0 * a);
+  return true;
+}
 
 Plan plan_marking(std::span<const PlanDefect> defects, const Eigen::Vector3d& arm_Base, const Eigen::Vector3d& velocity,
                   const ArmTimingModel& arm, std::span<PlanEntry> out) {
@@ -35,7 +51,6 @@ Plan plan_marking(std::span<const PlanDefect> defects, const Eigen::Vector3d& ar
   double t = 0;  // when the arm is free
   const double settle = to_seconds(arm.settle), pulse = to_seconds(arm.pulse);
   const double timeout = to_seconds(arm.defect_timeout), horizon = to_seconds(arm.horizon);
-  const auto in_reach = [&](const Eigen::Vector3d& p0, double time) { return (p0 + velocity * time).norm() <= arm.reach; };
   const std::size_t n = std::min(defects.size(), out.size());
   for (std::size_t k = 0; k < n; ++k) {
     const PlanDefect& d = defects[k];
@@ -56,34 +71,21 @@ Plan plan_marking(std::span<const PlanDefect> defects, const Eigen::Vector3d& ar
     }
     double spray = t + T + settle;
     double ready = t;  // from when the defect is the arm's and within reach
-    // Not in reach then: the line may bring it later (the arm waits where it will enter),
-    // or it was in reach and left while the arm was busy, or it never comes.
-    if (!in_reach(d.position_Base, spray)) {
-      const int steps = static_cast<int>(horizon / kReachStep);  // bounded search
-      int enter = -1;
-      bool earlier = false;
-      for (int i = 0; i <= steps; ++i) {
-        const double s = t + i * kReachStep;
-        const bool inside = in_reach(d.position_Base, s);
-        if (inside && s >= spray) {
-          enter = i;
-          break;
-        }
-        earlier = earlier || inside;
-      }
-      if (enter < 0 || earlier) {
-        e.verdict = earlier ? PlanVerdict::kLeavesReach : PlanVerdict::kNeverInReach;
-        ++plan.infeasible;
-        continue;
-      }
-      const double s = t + enter * kReachStep;
-      ready = s;
-      spray = std::max(s, t + move_seconds(arm, (d.position_Base + velocity * s - at).norm()) + settle);
-      if (!in_reach(d.position_Base, spray)) {  // entered and left again while the arm came
-        e.verdict = PlanVerdict::kLeavesReach;
-        ++plan.infeasible;
-        continue;
-      }
+    // Within reach while the arm is free: [t_in, t_out] (a straight path through a sphere).
+    double t_in = 0, t_out = 0;
+    if (!reach_interval(d.position_Base, velocity, arm.reach, t_in, t_out) || t_out < t || t_in > t + horizon) {
+      e.verdict = PlanVerdict::kNeverInReach;
+      ++plan.infeasible;
+      continue;
+    }
+    if (spray < t_in) {  // not yet: the arm waits where the line will bring it
+      ready = t_in;
+      spray = std::max(t_in, t + move_seconds(arm, (d.position_Base + velocity * t_in - at).norm()) + settle);
+    }
+    if (spray > t_out) {  // gone before the arm's turn comes
+      e.verdict = PlanVerdict::kLeavesReach;
+      ++plan.infeasible;
+      continue;
     }
     if (spray - ready > timeout) {
       e.verdict = PlanVerdict::kTooLong;

@@ -8,11 +8,6 @@
 
 namespace markcell::host {
 
-namespace {
-constexpr double kSearchStep = 0.002;  // m, where the row's first defect enters reach
-constexpr double kSearchLength = 20.0;  // m, along the line
-}  // namespace
-
 Capacity marking_capacity(const CellConfig& config, const Eigen::Isometry3d& X_Base_CamR, double speed, double spacing,
                           double depth, double length) {
   const control::ArmTimingModel arm = arm_timing_model(config);
@@ -27,21 +22,9 @@ Capacity marking_capacity(const CellConfig& config, const Eigen::Isometry3d& X_B
   const auto nozzle = [&](double s) {
     return Eigen::Vector3d(X_Base_CamR * (Eigen::Vector3d(0, 0, depth - config.marking.standoff_m) + s * dir_CamR));
   };
-  // Upstream of the workspace, moving downstream: the first s where it is within reach.
-  double enter = 0;
-  bool found = false;
-  int steps = static_cast<int>(2 * kSearchLength / kSearchStep);
-  for (int i = 0; i <= steps && !found; ++i) {
-    const double s = -kSearchLength + i * kSearchStep;
-    if (nozzle(s).norm() <= arm.reach) {
-      enter = s;
-      found = true;
-    }
-  }
-  if (!found) return c;  // the row never passes within reach: capacity 0
-  double leave = enter;
-  for (; leave < kSearchLength && nozzle(leave).norm() <= arm.reach; leave += kSearchStep) {
-  }
+  // Along the line (s in metres) the nozzles are within reach for [enter, leave].
+  double enter = 0, leave = 0;
+  if (!control::reach_interval(nozzle(0.0), dir, arm.reach, enter, leave)) return c;  // never: capacity 0
   c.window_s = speed > 0 ? (leave - enter) / speed : 0;
   c.seconds_per_defect = control::move_seconds(arm, spacing) + to_seconds(arm.settle) + to_seconds(arm.pulse);
 

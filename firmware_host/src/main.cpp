@@ -73,14 +73,20 @@ void print_faults(control::FaultLog& log) {
   if (log.dropped() > 0) std::printf("  (%llu faults dropped: the log was full)\n", static_cast<unsigned long long>(log.dropped()));
 }
 
-int run_command(const std::string& file, const std::string& clock_name, double seconds) {
-  CellConfig config;
+std::optional<CellConfig> load_or_report(const std::string& file) {
   try {
-    config = load_config(file, task_catalog());
+    return load_config(file, task_catalog());
   } catch (const ConfigInvalid& e) {
     for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
-    return kExitConfig;
+    std::cerr << e.errors().size() << " error(s) in " << file << "\n";
+    return std::nullopt;
   }
+}
+
+int run_command(const std::string& file, const std::string& clock_name, double seconds) {
+  const std::optional<CellConfig> loaded = load_or_report(file);
+  if (!loaded) return kExitConfig;
+  const CellConfig& config = *loaded;
   const bool simulated = clock_name == "sim";
   sigset_t signals = stop_signals();
 
@@ -294,15 +300,6 @@ int calibrate_base_command(const CellConfig& config, const std::string& out, std
   return 0;
 }
 
-std::optional<CellConfig> load_or_report(const std::string& file) {
-  try {
-    return load_config(file, task_catalog());
-  } catch (const ConfigInvalid& e) {
-    for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
-    std::cerr << e.errors().size() << " error(s) in " << file << "\n";
-    return std::nullopt;
-  }
-}
 
 int replay_command(const CellConfig& config, const std::string& recording, const std::string& out,
                    const rig::ReplayOptions& base) {
@@ -563,14 +560,9 @@ int main(int argc, char** argv) {
       return bench_vision(*config, vision_options);
     }
     if (*loop) {
-      CellConfig config;
-      try {
-        config = load_config(bench_config, task_catalog());
-      } catch (const ConfigInvalid& e) {
-        for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
-        return kExitConfig;
-      }
-      return bench_loop(config, loop_options);
+      const auto config = load_or_report(bench_config);
+      if (!config) return kExitConfig;
+      return bench_loop(*config, loop_options);
     }
   } catch (const std::exception& e) {
     std::cerr << "markcell: " << e.what() << "\n";

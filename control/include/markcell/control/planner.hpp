@@ -35,6 +35,10 @@ struct ArmTimingModel {
 // Rest-to-rest time over `distance` at the model's limits.
 double move_seconds(const ArmTimingModel& arm, double distance);
 
+// When a point starting at p0 and moving at v is within `reach` of the origin: the times
+// [t_in, t_out] (the whole line for one standing inside). False: never.
+bool reach_interval(const Eigen::Vector3d& p0, const Eigen::Vector3d& v, double reach, double& t_in, double& t_out);
+
 struct PlanDefect {
   int index = 0;                                        // the caller's (the job's defect index)
   Eigen::Vector3d position_Base = Eigen::Vector3d::Zero();  // spraying pose of the nozzle at t = 0

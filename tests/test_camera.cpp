@@ -88,10 +88,14 @@ TEST_CASE("a stereo pair of fake GigE Vision cameras: frames, a killed camera, a
   StereoCamera pair(left, right, millis(50), millis(1500));
 
   std::uint64_t last_left_id = 0;
-  for (int i = 0; i < 10; ++i) {
+  int first_pairs = 0;
+  for (int attempt = 0; attempt < 20 && first_pairs < 10; ++attempt) {
     REQUIRE(pair.trigger());
     StereoFrame f;
-    REQUIRE(pair.next(f, seconds(2)) == PairStatus::kPair);
+    const PairStatus got = pair.next(f, seconds(1));  // less than the pair's silence
+    REQUIRE((got == PairStatus::kPair || got == PairStatus::kTimeout));  // a lost frame is retriggered
+    if (got != PairStatus::kPair) continue;
+    const int i = first_pairs++;
     CHECK(f.left.width == 640);
     CHECK(f.left.height == 480);
     CHECK(f.right.width == 640);
@@ -106,19 +110,38 @@ TEST_CASE("a stereo pair of fake GigE Vision cameras: frames, a killed camera, a
   }
   CHECK(pair.counters().pairs == 10);
   {
-    std::size_t allocations = 0;
-    int pairs = 0;
+    // 20 pairs once streaming. A software-triggered frame the fake camera does not send
+    // (it drops one now and then when the machine is loaded) is a lost frame, counted by
+    // the pairing and answered by the next trigger; it is not an error of the driver.
+    // Heap use is counted on this thread (the cell's vision lane would be here) for the
+    // wait and pairing, and separately for the software trigger: Aravis builds each GVCP
+    // command packet on the heap, which is why the cell's default trigger is the hardware line.
+    std::size_t wait_allocations = 0, trigger_allocations = 0, all_threads = 0;
+    int pairs = 0, missed = 0;
     {
       test::AllocationGuard guard;
-      for (int i = 0; i < 20; ++i) {
-        pair.trigger();
+      for (int attempt = 0; attempt < 40 && pairs < 20; ++attempt) {
+        {
+          test::AllocationGuard trigger_guard;
+          pair.trigger();
+          trigger_allocations += trigger_guard.allocations_on_this_thread();
+        }
+        test::AllocationGuard wait_guard;
         StereoFrame f;
-        pairs += pair.next(f, seconds(2)) == PairStatus::kPair;
+        const bool paired = pair.next(f, seconds(1)) == PairStatus::kPair;  // less than the pair's silence
+        wait_allocations += wait_guard.allocations_on_this_thread();
+        if (paired) ++pairs;
+        else ++missed;
       }
-      allocations = guard.allocations();
+      all_threads = guard.allocations();
     }
-    std::cout << "heap allocations in 20 stereo pairs once streaming (any thread, Aravis's included): " << allocations << "\n";
+    std::cout << "20 stereo pairs once streaming (" << missed << " triggers without a pair): heap allocations "
+              << wait_allocations << " in waiting and pairing, " << trigger_allocations
+              << " in software triggers (Aravis's GVCP packets), " << all_threads
+              << " in all threads (Aravis's receive threads included)\n";
     CHECK(pairs == 20);
+    CHECK(missed <= 4);
+    CHECK(wait_allocations == 0);
   }
   CHECK(left.counters().frames >= 10);
   CHECK(left.counters().incomplete == 0);

@@ -7,8 +7,14 @@
 namespace {
 std::atomic<int> g_armed{0};
 std::atomic<std::size_t> g_count{0};
+// Static TLS of a plain integer: no allocation and no constructor on first use, so it is
+// safe inside malloc itself.
+thread_local std::size_t t_count = 0;
 inline void on_allocation() {
-  if (g_armed.load(std::memory_order_relaxed) > 0) g_count.fetch_add(1, std::memory_order_relaxed);
+  if (g_armed.load(std::memory_order_relaxed) > 0) {
+    g_count.fetch_add(1, std::memory_order_relaxed);
+    ++t_count;
+  }
 }
 }  // namespace
 
@@ -65,8 +71,9 @@ int posix_memalign(void** out, std::size_t alignment, std::size_t n) {
 
 namespace markcell::test {
 
-AllocationGuard::AllocationGuard() : start_(g_count.load()) { g_armed.fetch_add(1); }
+AllocationGuard::AllocationGuard() : start_(g_count.load()), start_this_thread_(t_count) { g_armed.fetch_add(1); }
 AllocationGuard::~AllocationGuard() { g_armed.fetch_sub(1); }
 std::size_t AllocationGuard::allocations() const { return g_count.load() - start_; }
+std::size_t AllocationGuard::allocations_on_this_thread() const { return t_count - start_this_thread_; }
 
 }  // namespace markcell::test

@@ -15,9 +15,13 @@ class AllocationGuard {
   AllocationGuard& operator=(const AllocationGuard&) = delete;
   // Allocations since this guard was made.
   std::size_t allocations() const;
+  // Those made by the thread that made the guard: the code under test when other threads
+  // (a driver library's receive thread) are outside its control.
+  std::size_t allocations_on_this_thread() const;
 
  private:
   std::size_t start_;
+  std::size_t start_this_thread_;
 };
 
 }  // namespace markcell::test

@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "markcell/drivers/camera.hpp"
+#include "markcell/host/camera_frame_source.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/record.hpp"
@@ -205,6 +206,99 @@ TEST_CASE("markcell record: pairs from the fake stereo pair written as a recordi
   CHECK(std::filesystem::exists(rec.calibration_path()));
   // A second run into the same folder refuses to overwrite it.
   CHECK_THROWS_WITH(host::record_stereo(config, o, nullptr), Catch::Contains("already holds a recording"));
+}
+
+TEST_CASE("the vision task's live frame source: newest pair without blocking, a lost camera reported once and reconnected") {
+  FakeCamera fake_left("127.0.0.1", "MCL01");
+  FakeCamera fake_right("127.0.0.2", "MCR01");
+  host::CameraFrameSource source(std::make_unique<AravisCamera>(settings("127.0.0.1")),
+                                 std::make_unique<AravisCamera>(settings("127.0.0.2")), 640, 480, 20.0,
+                                 /*software_trigger=*/true, millis(15), millis(1500));
+  source.start(monotonic_now());
+  // Polled as the vision task polls it (a 33 ms period here): pairs come in order, each
+  // stamped with its capture time (arrival less the latency) on the monotonic clock.
+  const auto poll_until = [&](auto&& done, Nanos limit) {
+    const Nanos end = monotonic_now() + limit;
+    while (monotonic_now() < end && !done()) std::this_thread::sleep_for(std::chrono::milliseconds(33));
+  };
+  std::vector<std::uint64_t> seqs;
+  seqs.reserve(10);
+  int bad = 0;  // a pair of the wrong size, a dropped one, or one stamped in the future
+  std::size_t allocations = 0;
+  {
+    test::AllocationGuard guard;  // the vision task's side: next() only
+    poll_until(
+        [&] {
+          vision::StereoFrameRef f;
+          if (source.next(monotonic_now(), f) != vision::FrameResult::kFrame) return false;
+          if (f.dropped || f.left == nullptr || f.left->cols != 640 || f.right->rows != 480 || f.time > monotonic_now()) ++bad;
+          else seqs.push_back(f.seq);
+          return seqs.size() == 10 || bad > 0;
+        },
+        seconds(10));
+    allocations = guard.allocations_on_this_thread();
+  }
+  CHECK(bad == 0);
+  REQUIRE(seqs.size() == 10);
+  for (std::size_t i = 1; i < seqs.size(); ++i) CHECK(seqs[i] > seqs[i - 1]);
+  CHECK(allocations == 0);
+  CHECK(source.counters().pairs >= seqs.back());
+  // Pairs the vision task did not take (it polls slower than they come) are counted, not queued.
+  CHECK(source.skipped() == seqs.back() - seqs.front() - (seqs.size() - 1));
+
+  // The right camera dies: one dropped pair naming it, then nothing until it is back.
+  fake_right.stop();
+  std::string problem;
+  int losses_seen = 0;
+  poll_until(
+      [&] {
+        vision::StereoFrameRef f;
+        if (source.next(monotonic_now(), f) == vision::FrameResult::kFrame && f.dropped) {
+          problem = std::string(f.problem);
+          ++losses_seen;
+        }
+        return losses_seen > 0;
+      },
+      seconds(10));
+  CHECK_THAT(problem, Catch::Contains("camera '127.0.0.2' lost"));
+  CHECK(source.counters().losses == 1);
+  fake_right.start();
+  bool again = false;
+  poll_until(
+      [&] {
+        vision::StereoFrameRef f;
+        const auto got = source.next(monotonic_now(), f);
+        if (got == vision::FrameResult::kFrame && f.dropped) ++losses_seen;
+        again = got == vision::FrameResult::kFrame && !f.dropped;
+        return again;
+      },
+      seconds(20));
+  CHECK(again);
+  CHECK(losses_seen == 1);
+  CHECK(source.counters().reconnects == 1);
+  source.stop();
+}
+
+TEST_CASE("the cell with devices.cameras.source aravis: the vision task tracks live pairs from the cameras") {
+  FakeCamera fake_left("127.0.0.1", "MCL01");
+  FakeCamera fake_right("127.0.0.2", "MCR01");
+  auto config = host::load_config(test::source_path("config/cell.example.yaml"), host::task_catalog());
+  config.cameras.source = host::CameraSource::kAravis;
+  config.cameras.left_id = "127.0.0.1";
+  config.cameras.right_id = "127.0.0.2";
+  config.cameras.trigger = host::CameraTrigger::kSoftware;
+  config.watchdog.systemd = false;
+  config.executive.lock_memory = false;
+  for (auto& lane : config.executive.lanes) lane.priority = 0, lane.core = -1;
+  host::Cell cell(config, host::ClockKind::kReal);
+  cell.start();
+  const Nanos end = monotonic_now() + seconds(10);
+  while (monotonic_now() < end && cell.vision_stats()->frames < 20) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  cell.shutdown(control::FaultCode::kShutdown, "test", "end of test");
+  const host::VisionStats stats = *cell.vision_stats();
+  CHECK(stats.frames >= 20);
+  CHECK(stats.dropped == 0);
+  CHECK(stats.stalls == 0);
 }
 
 TEST_CASE("a camera that is not there is a clear error naming it") {

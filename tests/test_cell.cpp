@@ -120,3 +120,25 @@ TEST_CASE("10,000 cycles of the whole simulated cell allocate nothing") {
   CHECK(s.cell.spray_valve().pulse_count() == 1);
   CHECK_FALSE(s.cell.safe_stop().active());
 }
+
+TEST_CASE("the camera_trigger task: a rising edge on the trigger line every other run") {
+  CellConfig config = load_config(test::source_path("config/cell.example.yaml"), task_catalog());
+  control::TaskSpec trigger;
+  trigger.name = "camera_trigger";
+  trigger.lane = 0;  // control
+  trigger.period_ticks = 17;  // 17 ms at the 1 ms tick: 29.4 frames/s
+  trigger.budget = micros(50);
+  config.executive.tasks.push_back(trigger);
+  Cell cell(config, ClockKind::kSimulated);
+  cell.start();
+  REQUIRE(cell.sim_clock()->run_until(seconds(1)) == control::SimClock::RunResult::kReached);
+  std::vector<Nanos> rising;
+  for (const auto& e : cell.sim_gpio()->output_history())
+    if (e.line == static_cast<int>(LineRole::kCameraTrigger) && e.active) rising.push_back(e.time);
+  cell.shutdown(control::FaultCode::kShutdown, "test", "end of test");
+  // Runs at 0, 17, 34, ... ms; high on the 1st, 3rd, ...: rising edges at 0, 34, 68, ... ms.
+  REQUIRE(rising.size() == 30);  // 0 .. 986 ms
+  for (std::size_t i = 0; i < rising.size(); ++i) CHECK(rising[i] == millis(34) * static_cast<Nanos>(i));
+  // The line ends low: safe state after the shutdown.
+  CHECK_FALSE(cell.sim_gpio()->physical(static_cast<int>(LineRole::kCameraTrigger)));
+}

@@ -148,7 +148,7 @@ TEST_CASE_METHOD(Fixture, "references to undeclared lanes and unknown tasks") {
   const auto m = messages(e);
   for (const auto& x : m) UNSCOPED_INFO(x);
   REQUIRE(m.size() == 2);
-  CHECK(m[0] == file() + ":10:5: executive.tasks.vision_track: unknown task 'vision_track' (markcell provides: plc_io, spray_valve, arm_link, sim_world, vision, marking)");
+  CHECK(m[0] == file() + ":10:5: executive.tasks.vision_track: unknown task 'vision_track' (markcell provides: plc_io, spray_valve, arm_link, sim_world, vision, marking, camera_trigger)");
   CHECK(m[1] == file() + ":10:26: executive.tasks.vision_track.lane: lane 'vison' is not declared in executive.lanes "
                          "(declared: control)");
 }
@@ -270,4 +270,20 @@ TEST_CASE_METHOD(Fixture, "the record folder: resolved against the config's fold
   const auto m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  record_folder: nowhere")));
   REQUIRE(m.size() == 1);
   CHECK(m[0].find("cell.record_folder: folder '" + (dir.path() / "nowhere").string() + "' does not exist") != std::string::npos);
+}
+
+TEST_CASE_METHOD(Fixture, "camera_trigger: twice the frame rate, and only with the cameras on the trigger line") {
+  const std::string with_trigger =
+      replace(kValid, "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n",
+              "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n"
+              "    camera_trigger: {lane: control, period_us: 17000, budget_us: 50}\n");
+  CHECK(check(with_trigger).empty());  // 17 ms: 29.41 frames/s against 30, within 2 %
+  auto m = messages(check(replace(with_trigger, "period_us: 17000", "period_us: 33000")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":14:21: executive.tasks.camera_trigger: period_us 33000 gives 15.15 frames/s (a rising edge every "
+                         "other run); devices.cameras.fps is 30: set period_us to 17000 (the multiple of the 1000 us tick nearest 16667)");
+  m = messages(check(replace(with_trigger, "trigger: hardware}", "trigger: software}")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":14:21: executive.tasks.camera_trigger: devices.cameras.trigger is software: the cameras are not on "
+                         "the trigger line; remove camera_trigger or set trigger: hardware");
 }

@@ -6,6 +6,8 @@
 #include <stdexcept>
 
 #include "markcell/drivers/gpiod_lines.hpp"
+#include "markcell/host/camera_frame_source.hpp"
+#include "markcell/host/record.hpp"
 
 namespace markcell::host {
 
@@ -17,6 +19,7 @@ const std::vector<std::string>& task_catalog() {
       "sim_world",    // advances the simulated devices (only with simulated devices)
       "vision",       // frames -> macro-features -> panel pose (vision lane)
       "marking",      // inter-calibration, prediction, the marking sequence (control lane)
+      "camera_trigger",  // a rising edge on the camera trigger line every other run (cameras.trigger: hardware)
   };
   return kTasks;
 }
@@ -126,6 +129,14 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
   return control::TaskResult::kOk;
 }
 
+control::TaskResult Cell::CameraTriggerTask::task(control::TaskContext&, void* self) {
+  auto* t = static_cast<CameraTriggerTask*>(self);
+  t->high = !t->high;
+  // The trigger line is on the chip that also holds the valve and the PLC lines: one
+  // that cannot be set is a fault of the cell, not a lost frame.
+  return t->gpio->set(t->line, t->high) == drivers::GpioStatus::kOk ? control::TaskResult::kOk : control::TaskResult::kFault;
+}
+
 struct Cell::DeviceWatchdogSink final : control::WatchdogSink {
   explicit DeviceWatchdogSink(drivers::WatchdogDevice& d) : device(d) {}
   std::string_view name() const override { return "watchdog_device"; }
@@ -229,7 +240,11 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
       frame_source_ = std::make_unique<vision::RecordingFrameSource>(config.cameras.recording, config.cameras.latency,
                                                                      clock == ClockKind::kSimulated);
     else if (config.cameras.source == CameraSource::kAravis)
-      throw std::runtime_error(config.file + ": devices.cameras.source aravis: the live camera binding of the vision task is not in this build yet; use recording");
+      frame_source_ = std::make_unique<CameraFrameSource>(
+          std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.left_id)),
+          std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.right_id)),
+          config.cameras.width, config.cameras.height, config.cameras.fps,
+          config.cameras.trigger == CameraTrigger::kSoftware, config.cameras.latency, kCameraSilence);
     vision_->source = frame_source_.get();
     vision_->estimates = estimates_.get();
     vision_->requests = tracker_requests_.get();
@@ -275,6 +290,12 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     else if (task.name == "sim_world" && sim_world_) executive_->bind(task.name, &SimWorld::task, sim_world_.get());
     else if (task.name == "vision" && vision_) executive_->bind(task.name, &VisionTask::task, vision_.get());
     else if (task.name == "marking" && marking_) executive_->bind(task.name, &control::MarkingSequence::task, marking_.get());
+    else if (task.name == "camera_trigger") {
+      camera_trigger_ = std::make_unique<CameraTriggerTask>();
+      camera_trigger_->gpio = gpio_.get();
+      camera_trigger_->line = gpio_line(LineRole::kCameraTrigger);
+      executive_->bind(task.name, &CameraTriggerTask::task, camera_trigger_.get());
+    }
     else throw std::logic_error("task '" + task.name + "' passed validation but has no binding");
   }
   if (config.watchdog.systemd) executive_->add_watchdog(notifier_);

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -797,6 +798,27 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
       r.error(tasks["marking"], "executive.tasks.marking", "the marking task needs the vision task in the table");
     if (has_vision && cfg.calibration.stereo.empty())
       r.error(tasks["vision"], "executive.tasks.vision", "the vision task needs calibration.stereo");
+    if (const YAML::Node trig = tasks["camera_trigger"]; trig.IsDefined()) {
+      if (cfg.cameras.trigger != CameraTrigger::kHardware)
+        r.error(trig, "executive.tasks.camera_trigger",
+                "devices.cameras.trigger is software: the cameras are not on the trigger line; remove camera_trigger or set trigger: hardware");
+      // One rising edge every other run: the task runs at twice the frame rate.
+      for (const auto& t : cfg.executive.tasks)
+        if (t.name == "camera_trigger" && cfg.cameras.fps > 0) {
+          const double period_us = static_cast<double>(t.period_ticks) * static_cast<double>(cfg.executive.tick) / 1e3;
+          const double want_us = 1e6 / (2.0 * cfg.cameras.fps);
+          if (std::abs(period_us - want_us) > 0.02 * want_us) {
+            const double tick_us = static_cast<double>(cfg.executive.tick) / 1e3;
+            char message[240];
+            std::snprintf(message, sizeof message,
+                          "period_us %.0f gives %.2f frames/s (a rising edge every other run); devices.cameras.fps is %g: "
+                          "set period_us to %.0f (the multiple of the %.0f us tick nearest %.0f)",
+                          period_us, 1e6 / (2.0 * period_us), cfg.cameras.fps, std::max(1.0, std::round(want_us / tick_us)) * tick_us,
+                          tick_us, want_us);
+            r.error(trig, "executive.tasks.camera_trigger", message);
+          }
+        }
+    }
     const YAML::Node types = const_root["panel_types"];
     const auto file_given = [&](const std::string& name) {
       return is_map(types) && is_map(types[name]) && types[name]["file"].IsDefined();

@@ -63,6 +63,9 @@ class Camera {
   // call (the buffer goes back to the pool then).
   virtual FrameStatus next(FrameView& frame, Nanos timeout) noexcept = 0;
   virtual CameraCounters counters() const = 0;
+  // Off the real-time path: closes and opens the camera again. Returns false (with the
+  // reason in `why`) while it is still unreachable.
+  virtual bool reconnect(std::string& why) noexcept = 0;
 };
 
 class AravisCamera final : public Camera {
@@ -77,9 +80,7 @@ class AravisCamera final : public Camera {
   bool software_trigger() noexcept override;
   FrameStatus next(FrameView& frame, Nanos timeout) noexcept override;
   CameraCounters counters() const override;
-  // Off the real-time path: closes and opens the camera again. Returns false (with the
-  // reason in `why`) while it is still unreachable.
-  bool reconnect(std::string& why) noexcept;
+  bool reconnect(std::string& why) noexcept override;
 
  private:
   void release_held() noexcept;

@@ -30,6 +30,9 @@ const std::vector<std::string>& task_catalog();
 
 enum class ClockKind { kReal, kSimulated };
 
+// A live camera with no frame for this long is reported lost and reconnected.
+inline constexpr Nanos kCameraSilence = millis(1500);
+
 // The arm link's pieces as configured, shared by the cell and calibrate-base.
 drivers::CanArmLinkConfig can_link_config(const CanConfig& c);
 drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm);
@@ -143,6 +146,13 @@ class Cell {
     VisionStats stats;
     static control::TaskResult task(control::TaskContext& ctx, void* self);
   };
+  struct CameraTriggerTask {
+    drivers::GpioLines* gpio = nullptr;
+    int line = -1;
+    bool high = false;
+    static control::TaskResult task(control::TaskContext& ctx, void* self);
+  };
+  std::unique_ptr<CameraTriggerTask> camera_trigger_;
   std::unique_ptr<vision::StereoRig> rig_;
   Eigen::Isometry3d X_Base_CamR_ = Eigen::Isometry3d::Identity();
   std::vector<vision::PanelTypeModel> panel_models_;

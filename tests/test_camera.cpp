@@ -144,6 +144,18 @@ TEST_CASE("a stereo pair of fake GigE Vision cameras: frames, a killed camera, a
     CHECK(missed <= 4);
     CHECK(wait_allocations == 0);
   }
+  {
+    // Idle between shots for longer than the pair's silence (as calibrate-base is while
+    // the arm moves): the next triggered pair comes, and no camera counts as lost.
+    std::this_thread::sleep_for(std::chrono::milliseconds(2000));
+    PairStatus after_idle = PairStatus::kTimeout;
+    for (int attempt = 0; attempt < 3 && after_idle == PairStatus::kTimeout; ++attempt) {
+      pair.trigger();
+      StereoFrame f;
+      after_idle = pair.next(f, seconds(1));
+    }
+    CHECK(after_idle == PairStatus::kPair);
+  }
   CHECK(left.counters().frames >= 10);
   CHECK(left.counters().incomplete == 0);
 

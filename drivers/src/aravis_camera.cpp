@@ -1,6 +1,7 @@
 #include <arv.h>
 #include <time.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -180,6 +181,11 @@ StereoCamera::StereoCamera(Camera& left, Camera& right, Nanos pair_tolerance, Na
 }
 
 bool StereoCamera::trigger() noexcept {
+  // Silence is counted from the first trigger a camera has not answered (not from its
+  // last frame): a camera idle between software-triggered shots is not a lost one.
+  const Nanos now = monotonic_now();
+  if (!awaiting_left_) last_left_ = std::max(last_left_, now), awaiting_left_ = true;
+  if (!awaiting_right_) last_right_ = std::max(last_right_, now), awaiting_right_ = true;
   const bool l = left_.software_trigger();
   const bool r = right_.software_trigger();
   return l && r;
@@ -195,6 +201,7 @@ PairStatus StereoCamera::next(StereoFrame& out, Nanos timeout) noexcept {
       const FrameStatus s = left_.next(pending_left_, left_wait);
       if (s == FrameStatus::kFrame) {
         have_left_ = true;
+        awaiting_left_ = false;
         last_left_ = pending_left_.time;
       }
     }
@@ -203,6 +210,7 @@ PairStatus StereoCamera::next(StereoFrame& out, Nanos timeout) noexcept {
       const FrameStatus s = right_.next(pending_right_, deadline > now2 ? deadline - now2 : 0);
       if (s == FrameStatus::kFrame) {
         have_right_ = true;
+        awaiting_right_ = false;
         last_right_ = pending_right_.time;
       }
     }

@@ -314,10 +314,11 @@ class LiveDevices final : public BaseCalibrationDevices {
   explicit LiveDevices(const CellConfig& config)
       : link_(make_arm_link(config.arm, bus_)),
         left_(settings(config.cameras, config.cameras.left_id)),
-        right_(settings(config.cameras, config.cameras.right_id)) {
+        right_(settings(config.cameras, config.cameras.right_id)),
+        wait_(config.cameras.lost_after / 2) {
     left_.activate();
     right_.activate();
-    stereo_ = std::make_unique<drivers::StereoCamera>(left_, right_, millis(5), seconds(2));
+    stereo_ = std::make_unique<drivers::StereoCamera>(left_, right_, millis(5), config.cameras.lost_after);
   }
   ~LiveDevices() override {
     left_.deactivate();
@@ -335,7 +336,7 @@ class LiveDevices final : public BaseCalibrationDevices {
     for (int attempt = 0; attempt < 3; ++attempt) {
       stereo_->trigger();
       drivers::StereoFrame f;
-      const drivers::PairStatus s = stereo_->next(f, seconds(2));
+      const drivers::PairStatus s = stereo_->next(f, wait_);  // a dropped trigger is retried before the camera counts as lost
       if (s == drivers::PairStatus::kPair) {
         left = cv::Mat(f.left.height, f.left.width, CV_8UC1, const_cast<std::uint8_t*>(f.left.pixels),
                        static_cast<std::size_t>(f.left.stride))
@@ -346,7 +347,7 @@ class LiveDevices final : public BaseCalibrationDevices {
         return true;
       }
       why = s == drivers::PairStatus::kLeftLost ? "left camera lost" : s == drivers::PairStatus::kRightLost ? "right camera lost"
-                                                                                                               : "no pair within 2 s";
+                                                                                                               : "no pair within half of lost_after_ms";
       if (s != drivers::PairStatus::kTimeout) return false;
     }
     return false;
@@ -362,6 +363,7 @@ class LiveDevices final : public BaseCalibrationDevices {
   std::unique_ptr<drivers::SocketCanBus> bus_;
   std::unique_ptr<drivers::ArmLink> link_;
   drivers::AravisCamera left_, right_;
+  Nanos wait_;
   std::unique_ptr<drivers::StereoCamera> stereo_;
 };
 

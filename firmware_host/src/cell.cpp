@@ -244,7 +244,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
           std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.left_id)),
           std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.right_id)),
           config.cameras.width, config.cameras.height, config.cameras.fps,
-          config.cameras.trigger == CameraTrigger::kSoftware, config.cameras.latency, kCameraSilence);
+          config.cameras.trigger == CameraTrigger::kSoftware, config.cameras.latency, config.cameras.lost_after);
     vision_->source = frame_source_.get();
     vision_->estimates = estimates_.get();
     vision_->requests = tracker_requests_.get();

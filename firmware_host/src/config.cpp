@@ -484,7 +484,7 @@ void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
 void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
   const std::string P = "devices.cameras";
   if (!r.map(node, P, {"source", "left_id", "right_id", "width", "height", "fps", "exposure_us", "gain_db", "trigger",
-                       "latency_ms", "recording"}))
+                       "latency_ms", "lost_after_ms", "recording"}))
     return;
   r.choice(node, P, "source", c.source,
            {{"simulated", CameraSource::kSimulated}, {"aravis", CameraSource::kAravis}, {"recording", CameraSource::kRecording}});
@@ -502,6 +502,9 @@ void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
   long long latency = 15;
   r.integer(node, P, "latency_ms", latency, 0, 1000, false);
   c.latency = millis(latency);
+  long long lost_after = 1500;
+  r.integer(node, P, "lost_after_ms", lost_after, 100, 60000, false);
+  c.lost_after = millis(lost_after);
   if (c.source == CameraSource::kRecording) {
     r.existing_file(node, P, "recording", c.recording);
   } else if (node["recording"].IsDefined()) {

@@ -44,15 +44,15 @@ RecordSummary record_stereo(const CellConfig& config, const RecordOptions& o, st
   left.activate();
   right.activate();
   const Nanos period = static_cast<Nanos>(1e9 / config.cameras.fps);
-  drivers::StereoCamera pair(left, right, period / 2, seconds(2));
+  drivers::StereoCamera pair(left, right, period / 2, config.cameras.lost_after);
   const bool software = config.cameras.trigger == CameraTrigger::kSoftware;
   RecordSummary summary;
   Nanos first = -1;
-  // Bounded: every pair waits at most 2 s, and as many time-outs as pairs asked for end it.
+  // Bounded: every pair waits at most half of lost_after_ms, and as many time-outs as pairs asked for end it.
   while (summary.pairs < o.frames && summary.timeouts < o.frames) {
     if (software) pair.trigger();
     drivers::StereoFrame f;
-    const drivers::PairStatus s = pair.next(f, seconds(2));
+    const drivers::PairStatus s = pair.next(f, config.cameras.lost_after / 2);  // a dropped trigger is retried before the camera counts as lost
     if (s == drivers::PairStatus::kLeftLost || s == drivers::PairStatus::kRightLost) {
       writer.close();
       throw std::runtime_error("camera '" + (s == drivers::PairStatus::kLeftLost ? left_id : right_id) + "' lost after " +

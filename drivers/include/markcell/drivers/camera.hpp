@@ -95,7 +95,8 @@ class AravisCamera final : public Camera {
 
 // Two cameras as one stereo pair: frames are paired by their arrival times; a frame
 // with no partner within the tolerance is dropped and counted; a camera that delivers
-// nothing for `silence` is reported.
+// nothing for `silence` (since its last frame, or since the first software trigger it has
+// not answered, whichever is later) is reported.
 struct StereoFrame {
   FrameView left;
   FrameView right;
@@ -127,6 +128,7 @@ class StereoCamera {
   Nanos silence_;
   Nanos last_left_ = 0, last_right_ = 0;
   bool have_left_ = false, have_right_ = false;
+  bool awaiting_left_ = false, awaiting_right_ = false;  // triggered, no frame since
   FrameView pending_left_, pending_right_;
   StereoCounters counters_;
 };

@@ -30,9 +30,6 @@ const std::vector<std::string>& task_catalog();
 
 enum class ClockKind { kReal, kSimulated };
 
-// A live camera with no frame for this long is reported lost and reconnected.
-inline constexpr Nanos kCameraSilence = millis(1500);
-
 // The arm link's pieces as configured, shared by the cell and calibrate-base.
 drivers::CanArmLinkConfig can_link_config(const CanConfig& c);
 drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm);

@@ -108,6 +108,7 @@ struct CameraConfig {
   double gain_db = 0.0;
   CameraTrigger trigger = CameraTrigger::kHardware;
   Nanos latency = millis(15);  // exposure to frame in memory (transfer); replayed frames arrive this late
+  Nanos lost_after = millis(1500);  // a live camera with no frame for this long is reported lost and reconnected
   std::string recording;       // source: recording; absolute
 };
 

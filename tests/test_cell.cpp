@@ -35,6 +35,25 @@ TEST_CASE("the simulated cell brings the arm link up over the simulated CAN arm"
   CHECK_FALSE(s.line(LineRole::kPlcFault));
 }
 
+TEST_CASE("the valve's pulse record is a ring: pulse 300 is counted and readable, the oldest overwritten") {
+  // A cell sprays for years: the count never stops, the newest kHistory pulses are kept.
+  SimCell s;
+  constexpr std::uint64_t kPulses = control::SprayValve::kHistory + 44;
+  for (std::uint64_t i = 0; i < kPulses; ++i) {
+    const Nanos start = millis(100) + static_cast<Nanos>(i) * millis(20);
+    REQUIRE(s.cell.spray_valve().request(start, millis(10), false) == control::PulseRequest::kAccepted);
+    s.run_to(start + millis(15));
+    REQUIRE(s.cell.spray_valve().pulse_count() == i + 1);
+    const auto& p = s.cell.spray_valve().pulse(i);
+    CHECK(p.requested_start == start);
+    CHECK(p.opened == start);
+    CHECK(p.closed == start + millis(10));
+  }
+  // The oldest kept is pulse 44; pulse 0's slot now holds pulse 256.
+  CHECK(s.cell.spray_valve().pulse(44).requested_start == millis(100) + 44 * millis(20));
+  CHECK(s.cell.spray_valve().pulse(0).requested_start == millis(100) + 256 * millis(20));
+}
+
 TEST_CASE("a valve pulse opens and closes on the executive's ticks") {
   SimCell s;
   s.run_to(millis(100));

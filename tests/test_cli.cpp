@@ -1,6 +1,11 @@
 // The markcell executable as a user meets it: help, check-config, run.
 #include <catch2/catch.hpp>
+#include <array>
+#include <cmath>
+#include <filesystem>
 #include <string>
+
+#include "markcell/vision/panel_tracker.hpp"
 
 #include "test_files.hpp"
 
@@ -80,4 +85,54 @@ TEST_CASE("sim and replay: an unknown scenario and a folder without a recording 
   INFO(empty.output);
   CHECK(empty.exit_code == 1);
   CHECK(empty.output.find(dir.path().string() + "/recording.yaml") != std::string::npos);
+}
+
+TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes the MFs the engineer chose") {
+  // The reference image and the door's MFs where the panel model puts them (the truth).
+  markcell::test::TempDir dir;
+  const std::string image = (dir.path() / "door.png").string(), truth_file = (dir.path() / "truth.yaml").string();
+  const auto made = run_command("cd " + source_path("") + " && " + kMarkcell + " select-mfs --from-scenario paper-door --image " +
+                                image + " --out " + truth_file);
+  REQUIRE(made.exit_code == 0);
+  const auto truth = markcell::vision::load_panel_type(truth_file);
+  REQUIRE(truth.count == 10);
+  const auto near = [&](int mf, int dx, int dy) {  // an engineer's click, a few pixels off MF `mf` (1-based)
+    const auto& p = truth.reference_px[static_cast<std::size_t>(mf - 1)];
+    return std::to_string(std::lround(p.x()) + dx) + "," + std::to_string(std::lround(p.y()) + dy);
+  };
+  // Add MF 1, 2, 3 and 5; a click on the plain background adds nothing; drag the fourth
+  // (MF 5) onto MF 6; add MF 7 and delete it again; save.
+  const std::string out = (dir.path() / "door.yaml").string(), log = (dir.path() / "window.log").string();
+  const auto r = run_command(source_path("tests/drive_select_mfs.sh") + " " + kMarkcell + " " + image + " door " + out + " " + log +
+                             " click:" + near(1, 3, -2) + " click:" + near(2, 2, 3) + " click:" + near(3, -3, 1) +
+                             " click:" + near(5, 1, 2) + " click:12,470 drag:" + near(5, 0, 0) + "," + near(6, 2, 2) +
+                             " click:" + near(7, -2, -2) + " key:d key:s");
+  INFO(r.output);
+  REQUIRE(r.output.find("exit=0") != std::string::npos);
+  CHECK(r.output.find("MF 4 added at") != std::string::npos);
+  CHECK(r.output.find("no corner near (12.00, 470.00) (or too close to the border): not added") != std::string::npos);
+  CHECK(r.output.find("MF 4 moved to") != std::string::npos);
+  CHECK(r.output.find("MF 5 deleted; 4 left") != std::string::npos);
+  CHECK(r.output.find("saved 4 macro-features") != std::string::npos);
+  const auto chosen = markcell::vision::load_panel_type(out);
+  CHECK(chosen.name == "door");
+  REQUIRE(chosen.count == 4);
+  const std::array<int, 4> expected{1, 2, 3, 6};
+  for (std::size_t i = 0; i < 4; ++i) {
+    CAPTURE(i, expected[i]);
+    const Eigen::Vector2d d = chosen.reference_px[i] - truth.reference_px[static_cast<std::size_t>(expected[i] - 1)];
+    CHECK(d.norm() < 0.3);
+  }
+
+  // Quitting saves nothing; without a display the command says what to do instead.
+  const std::string none = (dir.path() / "none.yaml").string();
+  const auto quit = run_command(source_path("tests/drive_select_mfs.sh") + " " + kMarkcell + " " + image + " door " + none + " " + log +
+                                " click:" + near(1, 0, 0) + " key:q");
+  INFO(quit.output);
+  CHECK(quit.output.find("exit=1") != std::string::npos);
+  CHECK(quit.output.find("closed without saving; " + none + " not written") != std::string::npos);
+  CHECK_FALSE(std::filesystem::exists(none));
+  const auto headless = run_command("env -u DISPLAY " + kMarkcell + " select-mfs --image " + image + " --panel door --out " + none);
+  CHECK(headless.exit_code == 1);
+  CHECK(headless.output.find("no display to open the window on (DISPLAY is not set)") != std::string::npos);
 }

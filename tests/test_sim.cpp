@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
+#include <algorithm>
 #include <array>
 #include <filesystem>
 #include <fstream>
@@ -20,9 +21,12 @@
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
+#include "markcell/host/rig/scoring.hpp"
+#include "markcell/control/tool_pose.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
+#include "markcell/vision/render.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -421,5 +425,281 @@ TEST_CASE("a panel without an inspection record: PLC fault after the record time
   CHECK(r.defect_count == 0);
   CHECK(cell.sim_arm()->model().tool().position == home);
   CHECK(cell.sim_spray_count() == 0);
+  // The panel leaves: the PLC's fault line drops, ready for the next panel.
+  cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), false);
+  clock.run_until(t += millis(100));
+  cell.gpio().get(cell.gpio_line(host::LineRole::kPlcFault), fault);
+  CHECK_FALSE(fault);
+  CHECK(cell.marking()->state() == control::MarkingState::kIdle);
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
+}
+
+TEST_CASE("a record without a panel expires: its result a fault with the reason, the PLC's fault held until the next panel") {
+  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  cfg.watchdog.systemd = false;
+  cfg.executive.lock_memory = false;
+  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  REQUIRE(cfg.marking.record_expiry == seconds(300));
+  cfg.marking.record_expiry = seconds(20);
+  host::Cell cell(cfg, host::ClockKind::kSimulated);
+  cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(std::vector<vision::MemoryFrameSource::Pair>{}, cfg.cameras.latency));
+  cell.start();
+  auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
+  REQUIRE(cell.marking()->offer_job(job));
+  control::SimClock& clock = *cell.sim_clock();
+  const auto line = [&](host::LineRole role) {
+    bool v = false;
+    cell.gpio().get(cell.gpio_line(role), v);
+    return v;
+  };
+  Nanos t = 0;
+  clock.run_until(t += seconds(19));
+  CHECK(cell.marking()->panels_completed() == 0);  // still waiting for its panel
+  clock.run_until(t += seconds(2));
+  REQUIRE(cell.marking()->panels_completed() == 1);
+  cell.marking()->results().update();
+  const control::PanelResult r = cell.marking()->results().read();
+  CHECK(r.fault);
+  CHECK(r.panel_id.view() == job.panel_id.view());
+  CHECK(r.reason.view() == "inspection record expired: its panel never came");
+  REQUIRE(r.defect_count == 3);
+  for (int i = 0; i < 3; ++i) CHECK(r.defects[static_cast<std::size_t>(i)].skipped == control::SkipReason::kNoPanel);
+  CHECK(cell.sim_spray_count() == 0);
+  clock.run_until(t += seconds(5));
+  CHECK(line(host::LineRole::kPlcFault));  // no panel to release it: held
+  CHECK_FALSE(line(host::LineRole::kPlcDone));
+  CHECK(cell.marking()->can_offer());  // the mailbox is free for the next record
+  // The next panel with its record: the fault drops as it starts.
+  job.panel_id.assign("paper-door-2");
+  REQUIRE(cell.marking()->offer_job(job));
+  cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), true);
+  clock.run_until(t += millis(100));
+  CHECK_FALSE(line(host::LineRole::kPlcFault));
+  CHECK(line(host::LineRole::kPlcBusy));
+  cell.shutdown(control::FaultCode::kShutdown, "test", "done");
+}
+
+TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, no false spray, no heap use") {
+  // The short recording's frames in memory, replayed as panel after panel by one cell:
+  // the PLC brings each panel in, its record arrives, the cell marks it, the panel leaves.
+  const auto rec = vision::Recording::open(sim_dir() + "/recording");
+  std::vector<vision::MemoryFrameSource::Pair> pairs;
+  for (std::size_t i = 0; i < rec.size(); ++i) {
+    auto f = rec.read(i);
+    REQUIRE_FALSE(f.dropped);
+    pairs.push_back({f.seq, f.time - rec.entry(0).time, f.left, f.right});
+  }
+  const Nanos time_base = rec.entry(0).time;
+  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  cfg.watchdog.systemd = false;
+  cfg.executive.lock_memory = false;
+  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  host::Cell cell(cfg, host::ClockKind::kSimulated);
+  auto memory = std::make_unique<vision::MemoryFrameSource>(std::move(pairs), cfg.cameras.latency);
+  vision::MemoryFrameSource& source = *memory;
+  cell.use_frame_source(std::move(memory));
+  auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
+  cell.start();
+  control::SimClock& clock = *cell.sim_clock();
+  control::MarkingSequence& marking = *cell.marking();
+  const int present = cell.gpio_line(host::LineRole::kPlcPanelPresent);
+
+  // The truth of the recording, by linear interpolation between its poses.
+  const auto& truth = rec.truth();
+  REQUIRE(truth.size() >= 2);
+  const auto truth_at = [&](Nanos t_rec) {
+    std::size_t i = 1;
+    while (i + 1 < truth.size() && truth[i].time < t_rec) ++i;
+    const auto& a = truth[i - 1];
+    const auto& b = truth[i];
+    const double f = std::clamp(static_cast<double>(t_rec - a.time) / static_cast<double>(b.time - a.time), 0.0, 1.0);
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() = Eigen::Quaterniond(a.X_CamR_Panel.linear()).slerp(f, Eigen::Quaterniond(b.X_CamR_Panel.linear())).toRotationMatrix();
+    X.translation() = (1 - f) * a.X_CamR_Panel.translation() + f * b.X_CamR_Panel.translation();
+    return X;
+  };
+  std::vector<host::rig::TrueDefect> defects;
+  for (const auto& d : rec.defects()) defects.push_back({d.id, d.p_Panel});
+  const vision::PanelShape shape = vision::panel_shape(rec.manifest().panel_type);
+  const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
+
+  constexpr int kPanels = 200;
+  int marked = 0, false_sprays = 0, faults = 0, unfinished = 0;
+  std::string first_unfinished;  // (the first panel that did not finish: the state it hung in)
+  std::size_t allocations = 0;
+  for (int k = 0; k < kPanels; ++k) {
+    const Nanos epoch = clock.global_now();
+    const std::size_t sprays_before = cell.sim_spray_total();
+    job.panel_id.assign(("soak-" + std::to_string(k)).c_str());
+    {
+      test::AllocationGuard guard;
+      source.rewind(epoch);
+      const bool offered = marking.offer_job(job);
+      cell.sim_gpio()->drive_physical(present, true);
+      Nanos t = epoch;
+      while (marking.panels_completed() < static_cast<std::uint64_t>(k + 1) && t < epoch + seconds(15))
+        clock.run_until(t += millis(100));
+      cell.sim_gpio()->drive_physical(present, false);  // the panel leaves the station
+      clock.run_until(t + millis(200));
+      if (k > 0) allocations += guard.allocations();  // the first panel warms up what is allocated once
+      if ((!offered || marking.panels_completed() != static_cast<std::uint64_t>(k + 1)) && unfinished++ == 0)
+        first_unfinished = "panel " + std::to_string(k) + ": offered " + std::to_string(offered) + ", state " +
+                           std::string(control::to_string(marking.state())) + ", " +
+                           std::to_string(marking.panels_completed()) + " completed";
+    }
+    const control::PanelResult& r = marking.current();
+    faults += r.fault ? 1 : 0;
+    std::vector<host::rig::Spray> sprays;
+    for (std::size_t i = sprays_before; i < cell.sim_spray_total(); ++i)
+      sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_spray(i).tool)});
+    const auto score = host::rig::score_sprays(
+        shape, [&](Nanos t) { return truth_at(t - epoch + time_base); }, defects, sprays, {}, 0.010);
+    marked += score.marked;
+    false_sprays += score.false_sprays;
+  }
+  cell.shutdown(control::FaultCode::kShutdown, "test", "soak done");
+  INFO(first_unfinished);
+  CHECK(unfinished == 0);
+  CHECK(faults == 0);
+  CHECK(marked == kPanels * static_cast<int>(defects.size()));
+  CHECK(false_sprays == 0);
+  CHECK(marking.panels_completed() == kPanels);
+  CHECK(allocations == 0);
+}
+
+namespace {
+// A copy of the example configuration in `dir` running the cell as the service does, with
+// a results file, a record drop folder and the short recording as its cameras.
+struct ServiceCell {
+  std::filesystem::path config, results, drop, script;
+};
+ServiceCell service_cell(const test::TempDir& dir, const std::string& plc_script) {
+  ServiceCell s;
+  std::filesystem::copy(source_path("config"), dir.path() / "config", std::filesystem::copy_options::recursive);
+  s.config = dir.path() / "config" / "cell.example.yaml";
+  s.results = dir.path() / "results.jsonl";
+  s.drop = dir.path() / "drop";
+  s.script = dir.path() / "plc.txt";
+  std::filesystem::create_directories(s.drop);
+  std::string text = read_file(s.config.string());
+  const auto replace = [&](const std::string& from, const std::string& to) {
+    const auto at = text.find(from);
+    REQUIRE(at != std::string::npos);
+    text.replace(at, from.size(), to);
+  };
+  replace("  # results_file: /var/lib/markcell/results.jsonl", "  results_file: " + s.results.string());
+  replace("  # record_folder: /var/lib/markcell/records", "  record_folder: " + s.drop.string());
+  replace("source: simulated ", "source: recording ");
+  replace("    # recording: /path/to/recording", "    recording: " + sim_dir() + "/recording");
+  std::ofstream(s.config.string()) << text;
+  std::ofstream(s.script.string()) << plc_script;
+  return s;
+}
+
+std::vector<std::string> lines_of(const std::string& text) {
+  std::vector<std::string> out;
+  std::istringstream in(text);
+  for (std::string l; std::getline(in, l);) out.push_back(l);
+  return out;
+}
+}  // namespace
+
+TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder record, the panel marked and its result on disk") {
+  test::TempDir dir;
+  // The panel is present from the start and leaves with the recording's end (3 s).
+  const ServiceCell s = service_cell(dir, "# t  line  level\n0.0 plc_panel_present 1\n3.2 plc_panel_present 0  # leaves\n");
+  std::filesystem::copy_file(sim_dir() + "/recording/inspection.yaml", s.drop / "0001.yaml");
+  const auto r = run_command(kMarkcell + " run --config " + s.config.string() + " --clock sim --seconds 6 --plc-script " +
+                             s.script.string());
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  CHECK(r.output.find("<6>markcell: plc-script t=3.200 s plc_panel_present=0") != std::string::npos);
+  CHECK(r.output.find("<6>markcell: record panel=paper-door-1 accepted") != std::string::npos);
+  CHECK(r.output.find("<6>markcell: panel=paper-door-1 result=done sprayed=3 skipped=0") != std::string::npos);
+  CHECK(std::filesystem::exists(s.drop / "accepted" / "0001.yaml"));
+  const auto lines = lines_of(read_file(s.results.string()));
+  REQUIRE(lines.size() == 2);
+  CHECK(lines[0] == "{\"cell\": \"marking-station-sim\", \"record\": \"" + (s.drop / "accepted" / "0001.yaml").string() +
+                        "\", \"panel_id\": \"paper-door-1\", \"accepted\": true}");
+  CHECK(lines[1].find("\"panel_id\": \"paper-door-1\"") != std::string::npos);
+  CHECK(lines[1].find("\"fault\": false") != std::string::npos);
+  for (int id = 1; id <= 3; ++id) CHECK(lines[1].find("{\"id\": " + std::to_string(id) + ", \"sprayed\": true") != std::string::npos);
+
+  // The next panel's e-stop mid-sequence: the fault logged as it happens, the panel's
+  // result a fault with nothing sprayed after it, the valve closed.
+  std::string second = read_file(sim_dir() + "/recording/inspection.yaml");
+  second.replace(second.find("panel_id: paper-door-1"), 22, "panel_id: paper-door-2");
+  std::ofstream((s.drop / "0002.yaml").string()) << second;
+  std::ofstream(s.script.string()) << "0.0 plc_panel_present 1\n0.6 plc_estop 1\n";
+  const auto stop = run_command(kMarkcell + " run --config " + s.config.string() + " --clock sim --seconds 3 --plc-script " +
+                                s.script.string());
+  INFO(stop.output);
+  REQUIRE(stop.exit_code == 0);
+  CHECK(stop.output.find("<3>markcell: fault t=0.60") != std::string::npos);
+  CHECK(stop.output.find("code=operator_stop source=plc_estop detail=\"e-stop input active\"") != std::string::npos);
+  CHECK(stop.output.find("<3>markcell: panel=paper-door-2 result=fault sprayed=0 skipped=3 reason=\"safe stop during the marking sequence\"") !=
+        std::string::npos);
+  const auto after_stop = lines_of(read_file(s.results.string()));
+  REQUIRE(after_stop.size() == 4);
+  CHECK(after_stop[3].find("\"panel_id\": \"paper-door-2\"") != std::string::npos);
+  CHECK(after_stop[3].find("\"fault\": true") != std::string::npos);
+  CHECK(after_stop[3].find("\"sprayed\": true") == std::string::npos);
+
+  // A PLC script with a mistake is refused before anything starts, naming file and line.
+  std::ofstream(s.script.string()) << "0.0 plc_panel_present 1\n0.5 plc_panel_presnt 0\n";
+  const auto bad = run_command(kMarkcell + " run --config " + s.config.string() + " --clock sim --seconds 1 --plc-script " +
+                               s.script.string());
+  CHECK(bad.exit_code == 2);
+  CHECK(bad.output.find(s.script.string() + ":2: line 'plc_panel_presnt' is not a PLC input") != std::string::npos);
+  std::ofstream(s.script.string()) << "1.0 plc_panel_present 1\n0.5 plc_estop 1\n";
+  const auto order = run_command(kMarkcell + " run --config " + s.config.string() + " --clock sim --seconds 1 --plc-script " +
+                                 s.script.string());
+  CHECK(order.exit_code == 2);
+  CHECK(order.output.find(s.script.string() + ":2: time 0.5 s is before the previous event's") != std::string::npos);
+  CHECK(lines_of(read_file(s.results.string())) == after_stop);  // nothing written by a refused start
+}
+
+TEST_CASE("killed with SIGKILL mid-panel and restarted: earlier results intact, the panel recorded as interrupted, its id a duplicate") {
+  test::TempDir dir;
+  const ServiceCell s = service_cell(dir, "0.0 plc_panel_present 1\n");
+  // An earlier result, and a line a power cut tore (no newline).
+  const std::string earlier = "{\"cell\": \"marking-station-sim\", \"panel\": 1, \"panel_id\": \"door-0\", \"fault\": false}\n";
+  std::ofstream(s.results.string()) << earlier << "{\"cell\": \"marking-station-sim\", \"panel\": 2, \"panel_id\": \"do";
+  std::filesystem::copy_file(sim_dir() + "/recording/inspection.yaml", s.drop / "0001.yaml");
+  const std::string log = (dir.path() / "log").string();
+  // Real clock: the record is taken within 50 ms; the kill comes as soon as the log says
+  // so, while the panel's macro-features are being found (the recording lasts 3 s).
+  const auto killed = run_command("( " + kMarkcell + " run --config " + s.config.string() + " --plc-script " + s.script.string() +
+                                  " > " + log + " 2>&1 & pid=$!; for i in $(seq 600); do grep -q 'record panel=paper-door-1 accepted' " +
+                                  log + " && break; sleep 0.05; done; kill -KILL $pid; wait $pid; echo \"exit=$?\"; cat " + log + " )");
+  INFO(killed.output);
+  REQUIRE(killed.output.find("exit=137") != std::string::npos);
+  REQUIRE(killed.output.find("result=done") == std::string::npos);  // killed before the panel's end
+  std::string text = read_file(s.results.string());
+  REQUIRE(text.rfind(earlier, 0) == 0);
+
+  // The restart ends the torn line, answers the accepted record with an interrupted
+  // fault, and knows the panel id: the same record again is a duplicate.
+  std::filesystem::copy_file(sim_dir() + "/recording/inspection.yaml", s.drop / "0002.yaml");
+  const auto again = run_command(kMarkcell + " run --config " + s.config.string() + " --clock sim --seconds 1");
+  INFO(again.output);
+  REQUIRE(again.exit_code == 0);
+  CHECK(again.output.find("<3>markcell: panel=paper-door-1 result=fault reason=\"interrupted: markcell stopped after accepting its record and before its result\"") !=
+        std::string::npos);
+  CHECK(again.output.find("0002.yaml: panel_id: 'paper-door-1' was already received (a duplicate record)") != std::string::npos);
+  text = read_file(s.results.string());
+  CHECK(text.rfind(earlier, 0) == 0);  // untouched
+  const auto lines = lines_of(text);
+  REQUIRE(lines.size() == 5);
+  CHECK(lines[1] == "{\"cell\": \"marking-station-sim\", \"panel\": 2, \"panel_id\": \"do");  // torn, ended, left as it was
+  CHECK(lines[2].find("\"panel_id\": \"paper-door-1\", \"accepted\": true") != std::string::npos);
+  CHECK(lines[3] == "{\"cell\": \"marking-station-sim\", \"panel_id\": \"paper-door-1\", \"interrupted\": true, \"fault\": true, "
+                    "\"reason\": \"markcell stopped after accepting the panel's record and before its result\"}");
+  CHECK(lines[4].find("\"rejected\": ") != std::string::npos);
+  CHECK(std::filesystem::exists(s.drop / "rejected" / "0002.yaml"));
+
+  // A third start finds nothing left to answer.
+  const auto third = run_command(kMarkcell + " run --config " + s.config.string() + " --clock sim --seconds 1");
+  CHECK(third.exit_code == 0);
+  CHECK(lines_of(read_file(s.results.string())).size() == 5);
 }

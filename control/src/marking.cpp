@@ -16,6 +16,7 @@ std::string_view to_string(SkipReason r) {
     case SkipReason::kNoPrediction: return "panel not tracked when the defect's turn came";
     case SkipReason::kNotFound: return "panel's macro-features not found";
     case SkipReason::kStopped: return "stopped before the defect's turn (safe stop or panel left)";
+    case SkipReason::kNoPanel: return "its panel never came (the record expired)";
   }
   return "?";
 }
@@ -76,12 +77,20 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
   }
   const PlcInputs& plc = plc_io_.inputs();
   switch (state_) {
-    case MarkingState::kIdle:
+    case MarkingState::kIdle: {
+      const bool waiting = job_waiting_.load(std::memory_order_acquire);
+      if (!waiting || plc.panel_present) record_since_ = -1;
+      else if (record_since_ < 0) record_since_ = now;
+      else if (now - record_since_ > params_.record_expiry) {
+        record_without_panel(now);
+        break;
+      }
       if (!plc.panel_present || !plc.cycle_enable) present_since_ = -1;
-      else if (job_waiting_.load(std::memory_order_acquire)) start_panel(now);
+      else if (waiting) start_panel(now);
       else if (present_since_ < 0) present_since_ = now;
       else if (now - present_since_ > params_.record_timeout) panel_without_record(now);
       break;
+    }
     case MarkingState::kAcquire:
       if (!plc.panel_present) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
       else if (now > deadline_) fail_panel(now, "macro-features not found in time", SkipReason::kNotFound);
@@ -91,7 +100,7 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
       else approach(now, ctx);
       break;
     case MarkingState::kSpraying: {
-      const std::size_t n = valve_.pulse_count();
+      const std::uint64_t n = valve_.pulse_count();
       if (!valve_.open() && n > 0 && valve_.pulse(n - 1).closed >= 0 &&
           valve_.pulse(n - 1).requested_start == result_.defects[static_cast<std::size_t>(defect_)].spray_requested) {
         result_.defects[static_cast<std::size_t>(defect_)].sprayed = true;
@@ -129,8 +138,9 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
       }
       break;
     case MarkingState::kWaitRelease:
-      if (!plc.panel_present) {
+      if (!plc.panel_present) {  // the PLC has seen the answer: both lines drop for the next panel
         set_plc(plc_.done, false);
+        if (!fault_until_next_panel_) set_plc(plc_.fault, false);
         state_ = MarkingState::kIdle;
       }
       break;
@@ -149,6 +159,8 @@ void MarkingSequence::start_panel(Nanos now) {
   result_.defect_count = job_.defect_count;
   for (int i = 0; i < job_.defect_count; ++i) result_.defects[static_cast<std::size_t>(i)].id = job_.defects[static_cast<std::size_t>(i)].id;
   set_plc(plc_.done, false);
+  set_plc(plc_.fault, false);
+  fault_until_next_panel_ = false;
   set_plc(plc_.busy, true);
   // Ask the vision lane for a fresh search; poses of the previous P no longer count.
   TrackerRequest& req = tracker_requests_.write_slot();
@@ -359,12 +371,35 @@ void MarkingSequence::panel_without_record(Nanos now) {
   result_ = PanelResult{};
   result_.serial = completed_.load(std::memory_order_relaxed) + 1;
   result_.panel_id.assign("(no record)");
+  fault_until_next_panel_ = false;  // a panel came: it releases any earlier fault as it leaves
   result_.started = present_since_;
   result_.fault = true;
   result_.reason.assign("panel present without an inspection record");
   present_since_ = -1;
   job_.defect_count = 0;  // (no copy of a whole empty job on the control lane)
   job_.mf_count = 0;
+  finish_panel(now);
+}
+
+void MarkingSequence::record_without_panel(Nanos now) {
+  // The record is taken off the mailbox and answered, so the next one (the next panel's)
+  // is not held behind it; nothing moved.
+  record_since_ = -1;
+  job_ = mailbox_;
+  job_waiting_.store(false, std::memory_order_release);
+  result_ = PanelResult{};
+  result_.serial = completed_.load(std::memory_order_relaxed) + 1;
+  result_.panel_id = job_.panel_id.view();
+  result_.started = now;
+  result_.fault = true;
+  result_.reason.assign("inspection record expired: its panel never came");
+  fault_until_next_panel_ = true;  // no panel to release it: the PLC sees it until the next comes
+  result_.defect_count = job_.defect_count;
+  for (int i = 0; i < job_.defect_count; ++i) {
+    auto& d = result_.defects[static_cast<std::size_t>(i)];
+    d.id = job_.defects[static_cast<std::size_t>(i)].id;
+    d.skipped = SkipReason::kNoPanel;
+  }
   finish_panel(now);
 }
 

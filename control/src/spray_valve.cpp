@@ -19,11 +19,7 @@ void SprayValve::set(bool value) noexcept {
 TaskResult SprayValve::step(const TaskContext& ctx) noexcept {
   const Nanos now = ctx.now();
   auto finish = [&] {
-    if (count_ == kHistory) {
-      ++dropped_;
-    } else {
-      history_[count_++] = current_;
-    }
+    history_[static_cast<std::size_t>(count_++ % kHistory)] = current_;
     pending_ = false;
   };
   if (ctx.safe_stopped()) {

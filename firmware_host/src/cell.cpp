@@ -266,6 +266,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     mp.home_timeout = config.marking.home_timeout;
     mp.timing = arm_timing_model(config);
     mp.record_timeout = config.marking.record_timeout;
+    mp.record_expiry = config.marking.record_expiry;
     mp.require_result_ack = !config.results_file.empty();
     mp.line_direction_CamR = Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1],
                                              config.marking.line_direction[2]).normalized();

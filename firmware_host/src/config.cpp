@@ -254,7 +254,10 @@ class Reader {
   }
 
   // A file path, resolved against the config file's folder; it must exist.
-  void existing_file(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out) {
+  // A path relative to the configuration's folder that must name an existing file (or,
+  // with `folder`, an existing folder).
+  void existing_file(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out,
+                     bool folder = false) {
     std::string raw;
     text(parent, path, key, raw, true, 4096);
     if (raw.empty()) return;
@@ -262,9 +265,9 @@ class Reader {
     if (p.is_relative()) p = fs::path(file_).parent_path() / p;
     p = p.lexically_normal();
     std::error_code ec;
-    if (!fs::is_regular_file(p, ec)) {
+    if (folder ? !fs::is_directory(p, ec) : !fs::is_regular_file(p, ec)) {
       error((*child(parent, path, key, true)), join_path(path, key),
-            "file '" + raw + "' not found (looked for " + p.string() + ")");
+            std::string(folder ? "folder '" : "file '") + raw + "' not found (looked for " + p.string() + ")");
       return;
     }
     out = p.string();
@@ -506,7 +509,7 @@ void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
   r.integer(node, P, "lost_after_ms", lost_after, 100, 60000, false);
   c.lost_after = millis(lost_after);
   if (c.source == CameraSource::kRecording) {
-    r.existing_file(node, P, "recording", c.recording);
+    r.existing_file(node, P, "recording", c.recording, true);
   } else if (node["recording"].IsDefined()) {
     r.error(node["recording"], P + ".recording", "only used with source: recording");
   }
@@ -595,7 +598,7 @@ void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
   const std::string P = "marking";
   if (!r.map(node, P, {"standoff_m", "command_lead_ms", "settle_mm", "settle_deg", "settle_ms", "max_prediction_age_ms",
                        "defect_timeout_s", "acquire_timeout_s", "home_timeout_s", "predictor", "intercalibration_limit_mm",
-                       "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm", "plan_settle_ms", "record_timeout_s"}))
+                       "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm", "plan_settle_ms", "record_timeout_s", "record_expiry_s"}))
     return;
   r.number(node, P, "standoff_m", m.standoff_m, 0.01, 1.0, false);
   // Absent keys keep the defaults of MarkingConfig.
@@ -605,6 +608,9 @@ void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
   double record = to_seconds(m.record_timeout);
   r.number(node, P, "record_timeout_s", record, 0.1, 600.0, false);
   m.record_timeout = static_cast<Nanos>(record * 1e9);
+  double expiry = to_seconds(m.record_expiry);
+  r.number(node, P, "record_expiry_s", expiry, 1.0, 86400.0, false);
+  m.record_expiry = static_cast<Nanos>(expiry * 1e9);
   double defect = to_seconds(m.defect_timeout), acquire = to_seconds(m.acquire_timeout), home = to_seconds(m.home_timeout);
   r.integer(node, P, "command_lead_ms", lead, 0, 1000, false);
   r.number(node, P, "settle_mm", m.settle_mm, 0.05, 50.0, false);

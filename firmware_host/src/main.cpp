@@ -19,7 +19,9 @@
 #include "markcell/host/json.hpp"
 #include "markcell/host/record.hpp"
 #include "markcell/host/record_folder.hpp"
+#include "markcell/host/plc_script.hpp"
 #include "markcell/host/results_file.hpp"
+#include "markcell/host/select_mfs_window.hpp"
 #include "markcell/host/rig/replay.hpp"
 #include "markcell/host/rig/scenario.hpp"
 #include "markcell/vision/calibration_io.hpp"
@@ -83,10 +85,38 @@ std::optional<CellConfig> load_or_report(const std::string& file) {
   }
 }
 
-int run_command(const std::string& file, const std::string& clock_name, double seconds) {
+// Every panel whose record was accepted but whose result never came (the process was
+// killed, the power cut, or it stopped before the panel arrived) gets a fault result
+// now, so no accepted panel is without one; the ids seen are duplicates from now on.
+void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records) {
+  const ResultsFile::History h = results.history();
+  if (records != nullptr)
+    for (const auto& id : h.panel_ids) records->remember(id);
+  for (const auto& id : h.unfinished) {
+    results.append(ResultsFile::interrupted_json(cell, id));
+    std::fprintf(stderr, "<3>markcell: panel=%s result=fault reason=\"interrupted: markcell stopped after accepting its record and before its result\"\n",
+                 id.c_str());
+  }
+}
+
+int run_command(const std::string& file, const std::string& clock_name, double seconds, const std::string& plc_script) {
   const std::optional<CellConfig> loaded = load_or_report(file);
   if (!loaded) return kExitConfig;
   const CellConfig& config = *loaded;
+  std::vector<PlcEvent> plc_events;
+  if (!plc_script.empty()) {
+    if (!config.gpio.simulated) {
+      std::cerr << "markcell: --plc-script drives simulated PLC lines; " << file
+                << " has devices.gpio.simulated: false (the real PLC drives the real lines)\n";
+      return kExitConfig;
+    }
+    try {
+      plc_events = load_plc_script(plc_script);
+    } catch (const std::exception& e) {
+      std::cerr << "markcell: " << e.what() << "\n";
+      return kExitConfig;
+    }
+  }
   const bool simulated = clock_name == "sim";
   sigset_t signals = stop_signals();
 
@@ -99,6 +129,7 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     if (!config.results_file.empty() && cell.marking() != nullptr) results = std::make_unique<ResultsFile>(config.results_file);
     if (!config.record_folder.empty() && cell.marking() != nullptr)
       records = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
+    if (results) close_interrupted(*results, config.name, records.get());
     cell.start();
   } catch (const std::exception& e) {
     std::cerr << "markcell: start-up failed: " << e.what() << "\n";
@@ -135,13 +166,27 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     written = r.serial;
   };
 
+  // Every fault as it is recorded: one journald line each (the stop's own are listed at the end).
+  const auto log_faults = [&] {
+    control::Fault f;
+    while (cell.faults().pop(f))
+      std::fprintf(stderr, "<3>markcell: fault t=%.6f code=%s source=%s detail=\"%s\"\n", to_seconds(f.time),
+                   std::string(control::to_string(f.code)).c_str(), f.source.c_str(), f.detail.c_str());
+  };
+
   // Inspection records from the drop folder, one at a time into the marking sequence; a
   // rejected one is logged and recorded in the results file with its reason.
   const auto take_records = [&] {
     if (!records) return;
     std::optional<RecordEvent> ev;
     try {
-      ev = records->poll([&](const control::PanelJob& job) { return cell.marking()->offer_job(job); });
+      ev = records->poll([&](const control::PanelJob& job) {
+        // The accepted line is on disk before the panel can start, so a crash from here
+        // on leaves a trace the next start answers (close_interrupted).
+        if (!cell.marking()->can_offer()) return false;
+        if (results) results->append(ResultsFile::accepted_json(config.name, records->offering(), std::string(job.panel_id.view())));
+        return cell.marking()->offer_job(job);
+      });
     } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
       std::fprintf(stderr, "<3>markcell: record folder %s: %s\n", records->folder().c_str(), e.what());
       return;
@@ -162,27 +207,50 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     }
   };
 
+  // The scripted PLC: every event due by `elapsed` (since the start) applied, in order.
+  std::size_t next_event = 0;
+  const auto apply_plc_events = [&](Nanos elapsed) {
+    for (; next_event < plc_events.size() && plc_events[next_event].at <= elapsed; ++next_event) {
+      const PlcEvent& ev = plc_events[next_event];
+      cell.drive_sim_input(ev.line, ev.level);
+      std::fprintf(stderr, "<6>markcell: plc-script t=%.3f s %s=%d\n", to_seconds(ev.at),
+                   std::string(to_string(ev.line)).c_str(), ev.level ? 1 : 0);
+    }
+  };
+  const auto next_event_after = [&](Nanos elapsed) {  // time to the next event, capped
+    return next_event < plc_events.size() ? std::max<Nanos>(0, plc_events[next_event].at - elapsed) : kNanosPerSecond;
+  };
+
   std::string stop_reason = "duration elapsed";
   if (simulated) {
-    const Nanos end = cell.sim_clock()->global_now() + static_cast<Nanos>(seconds * 1e9);
-    for (Nanos t = cell.sim_clock()->global_now(); t < end;) {
-      t = std::min(end, t + millis(100));
+    const Nanos start = cell.sim_clock()->global_now();
+    const Nanos end = start + static_cast<Nanos>(seconds * 1e9);
+    apply_plc_events(0);
+    for (Nanos t = start; t < end;) {
+      // Steps of 100 ms, cut at the script's events so each lands on its own time.
+      t = std::min({end, t + millis(100), t + std::max<Nanos>(1, next_event_after(t - start))});
       if (cell.sim_clock()->run_until(t) == control::SimClock::RunResult::kWedged) {
         stop_reason = "simulation wedged";
         break;
       }
+      apply_plc_events(t - start);
       collect();
+      log_faults();
       take_records();
     }
   } else {
-    const Nanos end = seconds > 0 ? monotonic_now() + static_cast<Nanos>(seconds * 1e9) : 0;
+    const Nanos start = monotonic_now();
+    const Nanos end = seconds > 0 ? start + static_cast<Nanos>(seconds * 1e9) : 0;
     for (;;) {
       // Bounded wait: wakes at once on a signal, at least every second otherwise.
+      apply_plc_events(monotonic_now() - start);
       collect();
+      log_faults();
       take_records();
       Nanos wait = seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
       if (wait <= 0) break;
       if (wait > millis(50)) wait = millis(50);  // results are written within 50 ms of a panel's end
+      wait = std::max<Nanos>(1, std::min(wait, next_event_after(monotonic_now() - start)));
       const timespec ts = to_timespec(wait);
       const int sig = sigtimedwait(&signals, nullptr, &ts);
       if (sig == SIGTERM || sig == SIGINT) {
@@ -192,6 +260,14 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     }
   }
   cell.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason);
+  collect();
+  if (results) {
+    try {
+      close_interrupted(*results, config.name, nullptr);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "<3>markcell: %s\n", e.what());
+    }
+  }
   std::fprintf(stderr, "<6>markcell: stopped (%s)\n", stop_reason.c_str());
   std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n"
             << cell.executive().timing_report();
@@ -351,8 +427,8 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     model = rig::reference_panel_type(s, cal, vision::RenderSettings{}, &reference);
     if (!image.empty()) cv::imwrite(image, reference);
   } else {
-    if (positions.empty()) {
-      std::cerr << "markcell select-mfs: give the MFs with --mf X,Y (one per MF, in order), or use --from-scenario\n";
+    if (image.empty() || panel.empty()) {
+      std::cerr << "markcell select-mfs: give --image FILE and --panel NAME (or use --from-scenario)\n";
       return kExitConfig;
     }
     const cv::Mat img = cv::imread(image, cv::IMREAD_GRAYSCALE);
@@ -361,6 +437,20 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
       return kExitConfig;
     }
     std::vector<Eigen::Vector2d> px;
+    if (positions.empty()) {  // the window: the engineer clicks them
+      try {
+        const auto chosen = select_mfs_window(img, "markcell select-mfs: " + panel, snap, std::cout);
+        if (!chosen) {
+          std::cerr << "markcell select-mfs: closed without saving; " << out << " not written\n";
+          return kExitRuntime;
+        }
+        px = *chosen;
+        snap = 0;  // already where the window showed them
+      } catch (const std::exception& e) {
+        std::cerr << "markcell select-mfs: " << e.what() << "\n";
+        return kExitRuntime;
+      }
+    }
     for (const auto& p : positions) {
       double x = 0, y = 0;
       char comma = 0;
@@ -408,6 +498,10 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"real", "sim"}));
   run->add_option("--seconds", run_seconds, "Stop after this long (0: until a signal; needed with --clock sim)")
       ->check(CLI::NonNegativeNumber);
+  std::string run_plc_script;
+  run->add_option("--plc-script", run_plc_script,
+                  "Simulated GPIO only: drive the PLC inputs from FILE ('SECONDS LINE 0|1' per line, from the start)")
+      ->check(CLI::ExistingFile);
 
   std::string cal_images, cal_board = "9x6", cal_out;
   double cal_square = 0.04;
@@ -552,7 +646,7 @@ int main(int argc, char** argv) {
         std::cerr << "markcell run: --clock sim needs --seconds (simulated time has no signal to stop it)\n";
         return kExitConfig;
       }
-      return run_command(run_file, clock_name, run_seconds);
+      return run_command(run_file, clock_name, run_seconds, run_plc_script);
     }
     if (*vision_bench) {
       const auto config = load_or_report(bench_config);

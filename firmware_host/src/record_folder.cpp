@@ -45,12 +45,17 @@ std::optional<RecordEvent> RecordFolder::poll(const std::function<bool(const con
     std::ofstream(ev.file + ".reason") << ev.reason << "\n";
     return ev;
   }
+  offering_ = (fs::path(folder_) / "accepted" / first->filename()).string();
   if (!offer(job)) return std::nullopt;  // the sequence still holds one: this waits
-  recent_ids_.push_back(ev.panel_id);
-  if (recent_ids_.size() > kRecentIds) recent_ids_.pop_front();
+  remember(ev.panel_id);
   ev.kind = RecordEvent::Kind::kAccepted;
   move_to("accepted");
   return ev;
+}
+
+void RecordFolder::remember(const std::string& panel_id) {
+  recent_ids_.push_back(panel_id);
+  if (recent_ids_.size() > kRecentIds) recent_ids_.pop_front();
 }
 
 }  // namespace markcell::host

@@ -7,7 +7,9 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <algorithm>
 #include <filesystem>
+#include <optional>
 #include <stdexcept>
 
 namespace markcell::host {
@@ -15,11 +17,37 @@ namespace markcell::host {
 namespace {
 std::string quote(std::string_view s) { return json_quote(s); }
 std::string num(double v) { return json_number(v, 4); }
+
+// The value of `"key": "..."` in one of this file's own lines (json_quote's escapes).
+std::optional<std::string> string_field(std::string_view line, std::string_view key) {
+  const std::string pattern = "\"" + std::string(key) + "\": \"";
+  const std::size_t at = line.find(pattern);
+  if (at == std::string_view::npos) return std::nullopt;
+  std::string value;
+  for (std::size_t i = at + pattern.size(); i < line.size(); ++i) {
+    if (line[i] == '"') return value;
+    if (line[i] == '\\' && i + 1 < line.size()) ++i;
+    value += line[i];
+  }
+  return std::nullopt;  // torn: no closing quote
+}
 }  // namespace
 
 ResultsFile::ResultsFile(const std::string& path) : path_(path) {
-  fd_ = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0640);
+  fd_ = ::open(path.c_str(), O_RDWR | O_APPEND | O_CREAT | O_CLOEXEC, 0640);
   if (fd_ < 0) throw std::runtime_error(path + ": cannot open the results file: " + std::strerror(errno));
+  // A line cut short by a crash (no newline at the end) is ended here, so the next result
+  // starts a line of its own and readers skip only the torn one.
+  const off_t size = ::lseek(fd_, 0, SEEK_END);
+  char last = '\n';
+  if (size > 0 && ::pread(fd_, &last, 1, size - 1) == 1 && last != '\n') {
+    if (::write(fd_, "\n", 1) != 1 || ::fdatasync(fd_) != 0) {
+      const std::string why = std::strerror(errno);
+      ::close(fd_);
+      fd_ = -1;
+      throw std::runtime_error(path + ": cannot end the torn last line of the results file: " + why);
+    }
+  }
   const std::string dir = std::filesystem::path(path).parent_path().string();
   const int dfd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dfd >= 0) {
@@ -42,6 +70,54 @@ void ResultsFile::append(const std::string& line) {
     done += static_cast<std::size_t>(n);
   }
   if (::fdatasync(fd_) != 0) throw std::runtime_error(path_ + ": syncing a result failed: " + std::strerror(errno));
+}
+
+std::string ResultsFile::accepted_json(const std::string& cell, const std::string& record, const std::string& panel_id) {
+  return "{\"cell\": " + quote(cell) + ", \"record\": " + quote(record) + ", \"panel_id\": " + quote(panel_id) +
+         ", \"accepted\": true}";
+}
+
+std::string ResultsFile::interrupted_json(const std::string& cell, const std::string& panel_id) {
+  return "{\"cell\": " + quote(cell) + ", \"panel_id\": " + quote(panel_id) +
+         ", \"interrupted\": true, \"fault\": true, \"reason\": "
+         "\"markcell stopped after accepting the panel's record and before its result\"}";
+}
+
+ResultsFile::History ResultsFile::history() const {
+  History h;
+  const off_t size = ::lseek(fd_, 0, SEEK_END);
+  if (size <= 0) return h;
+  const off_t from = size > kHistoryBytes ? size - kHistoryBytes : 0;
+  std::string text(static_cast<std::size_t>(size - from), '\0');
+  std::size_t done = 0;
+  while (done < text.size()) {
+    const ssize_t n = ::pread(fd_, text.data() + done, text.size() - done, from + static_cast<off_t>(done));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) throw std::runtime_error(path_ + ": reading the results file failed: " + std::strerror(errno));
+    done += static_cast<std::size_t>(n);
+  }
+  std::size_t start = 0;
+  if (from > 0) {  // the first line read from the middle is partial
+    start = text.find('\n');
+    if (start == std::string::npos) return h;
+    ++start;
+  }
+  while (start < text.size()) {
+    std::size_t end = text.find('\n', start);
+    if (end == std::string::npos) break;  // a torn last line counts for nothing
+    const std::string_view line(text.data() + start, end - start);
+    start = end + 1;
+    const auto id = string_field(line, "panel_id");
+    if (!id || line.find("\"rejected\": ") != std::string_view::npos) continue;
+    auto pending = std::find(h.unfinished.begin(), h.unfinished.end(), *id);
+    if (line.find("\"accepted\": true") != std::string_view::npos) {
+      if (pending == h.unfinished.end()) h.unfinished.push_back(*id);
+      h.panel_ids.push_back(*id);
+    } else if (pending != h.unfinished.end()) {
+      h.unfinished.erase(pending);  // its result (or its interrupted line)
+    }
+  }
+  return h;
 }
 
 std::string ResultsFile::to_json(const control::PanelResult& r, const std::string& cell) {

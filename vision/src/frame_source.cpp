@@ -102,7 +102,7 @@ FrameResult MemoryFrameSource::next(Nanos now, StereoFrameRef& out) noexcept {
   skipped_ += target - next_ - 1;
   const Pair& p = pairs_[target - 1];
   next_ = target;
-  out.seq = p.seq;
+  out.seq = seq_base_ + p.seq;
   out.time = epoch_ + p.time;
   out.index = target - 1;
   out.left = &p.left;

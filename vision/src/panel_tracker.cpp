@@ -48,6 +48,17 @@ cv::Mat patches_to_mat(const std::array<Patch, kMaxMacroFeatures>& patches, int 
 }
 }  // namespace
 
+bool snap_macro_feature(const cv::Mat& reference_left, Eigen::Vector2d& p, int snap_radius) {
+  Pyramid pyramid(reference_left.cols, reference_left.rows, kCoarseLevel + 1);
+  pyramid.build(reference_left);
+  if (snap_radius > 0) snap_to_corner(pyramid, p, snap_radius);
+  if (!refine_corner(pyramid, p, 5)) return false;
+  // Usable only where make_panel_type can cut both of its templates.
+  Patch fine, coarse;
+  return extract_patch(pyramid, 0, p, kTemplateRadius, fine) &&
+         extract_patch(pyramid, kCoarseLevel, p / coarse_scale(), kTemplateRadius / 2 + 1, coarse);
+}
+
 PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
                                const std::vector<Eigen::Vector2d>& positions, int snap_radius, int search_x,
                                int search_y) {

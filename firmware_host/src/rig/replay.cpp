@@ -141,7 +141,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   };
   std::vector<Spray> sprays;
   const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
-  for (std::size_t i = 0; i < cell.sim_spray_count(); ++i)
+  for (std::size_t i = cell.sim_spray_total() - cell.sim_spray_count(); i < cell.sim_spray_total(); ++i)
     sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_spray(i).tool)});
   std::vector<SkippedDefect> skipped;
   for (int i = 0; i < run.panel.defect_count; ++i) {

@@ -61,6 +61,7 @@ enum class SkipReason : std::uint8_t {
   kNotFound,          // the panel's MFs were not found
   kStopped,           // safe stop, e-stop or the panel left before its turn
   kPlanned,           // the plan: the line carries it out of reach before its turn
+  kNoPanel,           // the record expired: its panel never came
 };
 std::string_view to_string(SkipReason r);
 
@@ -108,6 +109,9 @@ struct MarkingParams {
   // A panel present (cycle enabled) this long with no inspection record: PLC fault, the
   // panel's result says so, nothing moves.
   Nanos record_timeout = seconds(5);
+  // A record waiting this long (the sequence idle) with no panel present expires: its
+  // panel's result is a fault saying so, the PLC hears fault, the next record moves up.
+  Nanos record_expiry = seconds(300);
   // With a results file: the PLC hears done (or fault) only once the panel's result is
   // written and synced (acknowledge_result); past this, fault.
   bool require_result_ack = false;
@@ -153,6 +157,8 @@ class MarkingSequence {
 
   // From the record reader (another thread): one record waits; false when one already does.
   bool offer_job(const PanelJob& job);
+  // No job waiting: the next offer_job from the same thread will be taken.
+  bool can_offer() const { return !job_waiting_.load(std::memory_order_acquire); }
   TaskResult step(const TaskContext& ctx) noexcept;
   static TaskResult task(TaskContext& ctx, void* self) { return static_cast<MarkingSequence*>(self)->step(ctx); }
 
@@ -176,6 +182,7 @@ class MarkingSequence {
   void finish_panel(Nanos now);
   void plan_panel(Nanos now);
   void panel_without_record(Nanos now);
+  void record_without_panel(Nanos now);
   void report_to_plc();
   void fail_panel(Nanos now, std::string_view reason, SkipReason skip);
   void set_plc(int line, bool value);
@@ -213,6 +220,8 @@ class MarkingSequence {
   Nanos home_sent_at_ = 0;
   int poses_since_intercal_ = 0;
   Nanos present_since_ = -1;  // panel present (cycle enabled) in idle without a record
+  Nanos record_since_ = -1;   // a record waiting in idle without a panel
+  bool fault_until_next_panel_ = false;  // an expired record's fault, held with no panel to release it
   bool planned_ = false;
   std::array<PlanDefect, kMaxDefects> plan_in_{};
   std::array<PlanEntry, kMaxDefects> plan_out_{};

@@ -34,10 +34,11 @@ class SprayValve {
   TaskResult step(const TaskContext& ctx) noexcept;
   static TaskResult task(TaskContext& ctx, void* self) { return static_cast<SprayValve*>(self)->step(ctx); }
   bool open() const { return open_; }
-  // Pulses so far (oldest first, at most kHistory; older ones counted in dropped()).
-  std::size_t pulse_count() const { return count_; }
-  const SprayPulse& pulse(std::size_t i) const { return history_[i]; }
-  std::uint64_t dropped() const { return dropped_; }
+  // Pulses finished so far, numbered from 0; the newest kHistory are kept (a ring: a
+  // cell sprays for years), so pulse(i) is valid for pulse_count() - kHistory <= i <
+  // pulse_count().
+  std::uint64_t pulse_count() const { return count_; }
+  const SprayPulse& pulse(std::uint64_t i) const { return history_[static_cast<std::size_t>(i % kHistory)]; }
   std::uint64_t io_errors() const { return io_errors_; }
 
  private:
@@ -48,8 +49,7 @@ class SprayValve {
   bool pending_ = false;
   bool open_ = false;
   std::array<SprayPulse, kHistory> history_{};
-  std::size_t count_ = 0;
-  std::uint64_t dropped_ = 0;
+  std::uint64_t count_ = 0;
   std::uint64_t io_errors_ = 0;
   SprayPulse current_;
 };

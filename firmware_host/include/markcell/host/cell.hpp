@@ -74,15 +74,22 @@ class Cell {
   drivers::SimGpioLines* sim_gpio() { return sim_gpio_; }
   drivers::GpioLines& gpio() { return *gpio_; }
   int gpio_line(LineRole role) const { return static_cast<int>(role); }
+  // Simulated GPIO only: the PLC drives an input to a logical level (active_low applied).
+  void drive_sim_input(LineRole role, bool logical) {
+    sim_gpio_->drive_physical(gpio_line(role), logical != config_.gpio.lines[static_cast<std::size_t>(role)].active_low);
+  }
   SystemdNotifier& notifier() { return notifier_; }
   control::SprayValve& spray_valve() { return *spray_valve_; }
   drivers::ArmLink& arm_link() { return *arm_link_; }
   control::ArmSupervision& arm_supervision() { return *arm_supervision_; }
   // The simulated arm (null unless devices.arm.transport is simulated).
   drivers::SimCanArm* sim_arm() { return sim_world_ ? sim_world_->arm.get() : nullptr; }
-  // Valve openings seen by the simulated world (simulated arm only), oldest first.
+  // Valve openings seen by the simulated world (simulated arm only), oldest first:
+  // all are counted, the newest 256 kept. sim_spray(i) for i in
+  // [sim_spray_total() - sim_spray_count(), sim_spray_total()).
+  std::size_t sim_spray_total() const { return sim_world_ ? sim_world_->spray_count : 0; }
   std::size_t sim_spray_count() const { return sim_world_ ? std::min(sim_world_->spray_count, sim_world_->sprays.size()) : 0; }
-  const SimSpray& sim_spray(std::size_t i) const { return sim_world_->sprays[i]; }
+  const SimSpray& sim_spray(std::size_t i) const { return sim_world_->sprays[i % sim_world_->sprays.size()]; }
   // The rig's command log: every CAN frame the controller sends to the simulated arm and
   // every valve opening and closing, with simulated times (candump -L style lines).
   // Storage for `capacity` entries is taken here, before start(); a full log counts

@@ -151,7 +151,8 @@ struct VisionConfig {
 struct MarkingConfig {
   double standoff_m = 0.20;
   Nanos plan_settle = millis(150);
-  Nanos record_timeout = seconds(5);  // panel present this long without a record: PLC fault  // the plan's time from arriving on a defect to its pulse
+  Nanos record_timeout = seconds(5);  // panel present this long without a record: PLC fault
+  Nanos record_expiry = seconds(300);  // a record waiting this long with no panel: its result a fault
   Nanos command_lead = millis(35);
   double settle_mm = 1.5;
   double settle_deg = 0.6;

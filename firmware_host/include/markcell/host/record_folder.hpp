@@ -35,12 +35,18 @@ class RecordFolder {
   // the next poll). Nothing happened: nullopt.
   std::optional<RecordEvent> poll(const std::function<bool(const control::PanelJob&)>& offer);
   const std::string& folder() const { return folder_; }
+  // A panel id received before this start (from the results file): a record with it again
+  // is a duplicate.
+  void remember(const std::string& panel_id);
+  // Inside `offer`: where the record being offered goes once taken (accepted/NAME.yaml).
+  const std::string& offering() const { return offering_; }
 
  private:
   static constexpr std::size_t kRecentIds = 4096;  // duplicate panel ids are caught among these
   std::string folder_;
   std::vector<PanelTypeConfig> panel_types_;
   std::deque<std::string> recent_ids_;
+  std::string offering_;
 };
 
 }  // namespace markcell::host

@@ -2,8 +2,10 @@
 // Every panel's result, one JSON line each, appended to a file that survives a power
 // cut: each line is written and fdatasync'ed before the marking sequence may tell the
 // PLC done (or fault). Append-only: a crash can at worst cut the last line short, never
-// touch an earlier one; readers skip a last line without its newline.
+// touch an earlier one. Opening ends a torn last line with a newline, so readers skip
+// exactly the lines that do not parse and every later result stands on a line of its own.
 #include <string>
+#include <vector>
 
 #include "markcell/control/marking.hpp"
 
@@ -22,6 +24,20 @@ class ResultsFile {
   const std::string& path() const { return path_; }
 
   static std::string to_json(const control::PanelResult& result, const std::string& cell);
+  // A record taken from the drop folder, written before its panel can start: if the
+  // process dies before the panel's result, the next start finds this line unanswered.
+  static std::string accepted_json(const std::string& cell, const std::string& record, const std::string& panel_id);
+  // The result written at start-up for such a panel: a fault, with the reason.
+  static std::string interrupted_json(const std::string& cell, const std::string& panel_id);
+
+  // What the file's last kHistoryBytes hold (the recent past; start-up reads no more):
+  // the panel ids seen, and those accepted without a result after (in file order).
+  static constexpr long kHistoryBytes = 8L << 20;
+  struct History {
+    std::vector<std::string> panel_ids;
+    std::vector<std::string> unfinished;
+  };
+  History history() const;
 
  private:
   std::string path_;

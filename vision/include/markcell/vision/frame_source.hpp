@@ -96,11 +96,20 @@ class MemoryFrameSource final : public FrameSource {
   void stop() noexcept override {}
   FrameResult next(Nanos now, StereoFrameRef& out) noexcept override;
   std::uint64_t skipped() const override { return skipped_; }
+  // The same pairs again from `epoch`, as the next panel (soak runs). Sequence numbers
+  // go on increasing. Only between the vision task's runs (a simulated clock between
+  // run_until calls).
+  void rewind(Nanos epoch) noexcept {
+    epoch_ = epoch;
+    next_ = 0;
+    seq_base_ += pairs_.empty() ? 0 : pairs_.back().seq + 1;
+  }
 
  private:
   std::vector<Pair> pairs_;
   Nanos latency_;
   Nanos epoch_ = 0;
+  std::uint64_t seq_base_ = 0;
   std::size_t next_ = 0;
   std::uint64_t skipped_ = 0;
 };

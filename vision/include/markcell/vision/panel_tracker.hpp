@@ -49,6 +49,9 @@ inline constexpr int kCoarseLevel = 2;
 PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
                                const std::vector<Eigen::Vector2d>& positions, int snap_radius, int search_x,
                                int search_y);
+// Where make_panel_type puts an MF clicked at `p`: the strongest Shi-Tomasi corner within
+// `snap_radius` pixels, refined to sub-pixel; false when there is no corner there.
+bool snap_macro_feature(const cv::Mat& reference_left, Eigen::Vector2d& p, int snap_radius);
 // OpenCV FileStorage YAML: panel_type, image_width, image_height, search_x_px,
 // search_y_px, macro_features (Nx2 px), templates and coarse_templates (N rows of
 // patch values). Errors name the file and the key.

@@ -298,3 +298,69 @@ TEST_CASE("a scenario generates the same recording twice, with its truth and the
   }
   CHECK(visible >= 8);
 }
+
+#include "alloc_guard.hpp"
+#include "markcell/host/rig/arm_view.hpp"
+#include "markcell/vision/calibration_io.hpp"
+
+TEST_CASE("the simulated arm's links: equal links meet at an elbow above the reach, the tool along the nozzle's +Z") {
+  using markcell::host::rig::ArmShape;
+  const ArmShape shape;
+  const Eigen::Isometry3d identity = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d X_Base_Nozzle = Eigen::Isometry3d::Identity();
+  X_Base_Nozzle.linear() = Eigen::AngleAxisd(-M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();  // +Z towards -X
+  X_Base_Nozzle.translation() = Eigen::Vector3d(0.9, 0.3, 0.8);
+  const auto c = markcell::host::rig::arm_occluders(shape, identity, X_Base_Nozzle);
+  const Eigen::Vector3d wrist = X_Base_Nozzle.translation() + shape.tool * X_Base_Nozzle.linear().col(2);
+  CHECK((c[2].b_CamR - X_Base_Nozzle.translation()).norm() < 1e-12);
+  CHECK((c[2].a_CamR - wrist).norm() < 1e-12);
+  CHECK((wrist - Eigen::Vector3d(0.65, 0.3, 0.8)).norm() < 1e-12);
+  CHECK((c[0].a_CamR - shape.shoulder_Base).norm() < 1e-12);
+  const Eigen::Vector3d elbow = c[0].b_CamR;
+  CHECK((c[1].a_CamR - elbow).norm() < 1e-12);
+  CHECK((elbow - shape.shoulder_Base).norm() == Approx(shape.upper_arm).epsilon(1e-9));
+  CHECK((wrist - elbow).norm() == Approx(shape.forearm).epsilon(1e-9));
+  // Bent upwards: above the straight line from shoulder to wrist.
+  CHECK(elbow.z() > (shape.shoulder_Base + (wrist - shape.shoulder_Base) * 0.5).z());
+  // Out of reach: stretched straight, the elbow halfway.
+  X_Base_Nozzle.translation() = Eigen::Vector3d(2.5, 0, 0.45);
+  const auto far = markcell::host::rig::arm_occluders(shape, identity, X_Base_Nozzle);
+  CHECK((far[0].b_CamR - (shape.shoulder_Base + far[1].b_CamR) / 2).norm() < 1e-12);
+}
+
+TEST_CASE("painting capsules over a rendered pair matches ray-casting them with the panel, without heap use") {
+  const auto cal = markcell::vision::load_stereo_calibration(markcell::test::source_path("config/calibration/marking_stereo.yaml"));
+  markcell::vision::RenderSettings settings;
+  settings.noise_sigma = 0;  // the two paths must see the same pixels
+  settings.blur_sigma_px = 0;
+  const markcell::vision::StereoRenderer renderer(cal, settings);
+  const auto panel = markcell::vision::door_shape();
+  Eigen::Isometry3d X_CamR_Panel = Eigen::Isometry3d::Identity();
+  X_CamR_Panel.translation() = Eigen::Vector3d(-0.4, -0.3, 3.1);
+  const std::vector<markcell::vision::Occluder> occ{  // an upper arm and a tool that do not touch
+      {Eigen::Vector3d(0.3, 0.9, 2.5), Eigen::Vector3d(0.0, 0.1, 2.7), 0.06, 70},
+      {Eigen::Vector3d(-0.1, -0.1, 2.8), Eigen::Vector3d(-0.35, -0.2, 2.9), 0.03, 35}};
+  cv::Mat cast_l, cast_r, plain_l, plain_r;
+  renderer.render(panel, X_CamR_Panel, 1.0, 1, occ, cast_l, cast_r);
+  renderer.render(panel, X_CamR_Panel, 1.0, 1, {}, plain_l, plain_r);
+  std::size_t allocations = 0;
+  {
+    markcell::test::AllocationGuard guard;
+    renderer.paint_occluders(occ.data(), occ.size(), plain_l, plain_r);
+    allocations = guard.allocations();
+  }
+  CHECK(allocations == 0);
+  for (const auto& [cast, painted] : {std::pair{&cast_l, &plain_l}, std::pair{&cast_r, &plain_r}}) {
+    cv::Mat diff;
+    cv::absdiff(*cast, *painted, diff);
+    // The same capsules, the same sample rays: equal up to the rounding of a blend, except
+    // where a capsule's edge crosses an edge of the panel inside one pixel (the painter
+    // blends the pixel's mean, the ray-cast the samples the capsule leaves): a handful.
+    const int off = cv::countNonZero(diff > 1);
+    INFO("pixels off by more than 1 grey level: " << off);
+    CHECK(off <= 20);
+    CHECK(cv::countNonZero(*cast == 70) > 1500);  // the arm really is in the view
+    CHECK(cv::countNonZero(*cast == 35) > 200);
+    CHECK(std::abs(cv::countNonZero(*cast == 70) - cv::countNonZero(*painted == 70)) <= 5);
+  }
+}

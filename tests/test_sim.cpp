@@ -96,6 +96,11 @@ TEST_CASE("markcell sim paper-door: all three dings marked within the radius, no
   CHECK(y < 0.89);
   CHECK(z < 2.01);
   CHECK(json_number(json, "deadline_misses", "deadline_misses") == 0);
+  // The simulated arm was drawn into every pair in closed loop and, spraying, hid some of
+  // the door's MFs from the cameras: the marks above were made in spite of it.
+  CHECK(json_number(json, "vision", "arm_drawn") == json_number(json, "vision", "frames"));
+  CHECK(json_number(json, "vision", "arm_hid_pairs") > 0);
+  CHECK(json_number(json, "vision", "arm_hidden_mfs") >= json_number(json, "vision", "arm_hid_pairs"));
   // The plan made once the door's motion was known: all three feasible, as the run found.
   CHECK(json_number(json, "plan", "feasible") == 3);
   CHECK(json.find("\"matches_run\": true") != std::string::npos);
@@ -662,6 +667,14 @@ TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder re
 TEST_CASE("killed with SIGKILL mid-panel and restarted: earlier results intact, the panel recorded as interrupted, its id a duplicate") {
   test::TempDir dir;
   const ServiceCell s = service_cell(dir, "0.0 plc_panel_present 1\n");
+  {
+    // On the real clock, under the sanitizers, on a shared machine a task may overrun its
+    // budget; this test is about the crash, not the timing: overruns are only logged.
+    std::string text = read_file(s.config.string());
+    for (auto at = text.find("on_overrun: safe_stop"); at != std::string::npos; at = text.find("on_overrun: safe_stop", at))
+      text.replace(at, 21, "on_overrun: log");
+    std::ofstream(s.config.string()) << text;
+  }
   // An earlier result, and a line a power cut tore (no newline).
   const std::string earlier = "{\"cell\": \"marking-station-sim\", \"panel\": 1, \"panel_id\": \"door-0\", \"fault\": false}\n";
   std::ofstream(s.results.string()) << earlier << "{\"cell\": \"marking-station-sim\", \"panel\": 2, \"panel_id\": \"do";

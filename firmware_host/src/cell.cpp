@@ -1,4 +1,5 @@
 #include "markcell/host/cell.hpp"
+#include "markcell/host/rig/arm_view.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -74,6 +75,7 @@ std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::uniqu
 control::TaskResult Cell::SimWorld::task(control::TaskContext& ctx, void* self) {
   auto* w = static_cast<SimWorld*>(self);
   w->arm->poll(ctx.now());
+  if (w->overlay != nullptr) w->overlay->publish(w->arm->model().tool());
   // Runs after spray_valve in the tick: a valve that opened this tick is open now.
   const bool open = w->valve != nullptr && w->valve->open();
   if (open && !w->valve_was_open) {
@@ -123,8 +125,15 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
     v->faults->push(fault);
     return control::TaskResult::kOk;
   }
+  if (v->overlay != nullptr) v->overlay->apply(f);
   const vision::PoseEstimate& e = v->trackers[static_cast<std::size_t>(v->active)]->process(f.seq, f.time, *f.left, *f.right);
   if (e.has_pose()) ++v->stats.poses;
+  if (v->overlay != nullptr) {
+    v->stats.arm_drawn = v->overlay->painted();
+    const int hidden = v->overlay->hidden_macro_features(e);
+    v->stats.arm_hid_pairs += hidden > 0 ? 1 : 0;
+    v->stats.arm_hidden_mfs += static_cast<std::uint64_t>(hidden);
+  }
   v->estimates->write(e);
   return control::TaskResult::kOk;
 }
@@ -316,6 +325,14 @@ void Cell::enable_command_log(std::size_t capacity) {
         static_cast<SimWorld*>(user)->record({time, -1, frame});
       },
       sim_world_.get());
+}
+
+void Cell::draw_sim_arm_in_frames() {
+  if (!vision_ || !sim_world_ || started_)
+    throw std::logic_error("drawing the arm needs the vision task and the simulated arm, before start()");
+  arm_overlay_ = std::make_unique<rig::ArmOverlay>(rig_->calibration(), X_Base_CamR_.inverse());
+  sim_world_->overlay = arm_overlay_.get();
+  vision_->overlay = arm_overlay_.get();
 }
 
 void Cell::use_frame_source(std::unique_ptr<vision::FrameSource> source) {

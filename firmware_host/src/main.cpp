@@ -543,7 +543,7 @@ int main(int argc, char** argv) {
   std::string rig_config = "config/cell.example.yaml", rig_out, sim_scenario, replay_recording, scanner_file;
   std::uint64_t sim_seed = 1;
   double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
-  bool one_predictor = false, quiet = false;
+  bool one_predictor = false, quiet = false, no_arm = false;
   auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
   sim->add_option("SCENARIO", sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
       ->required();
@@ -558,6 +558,7 @@ int main(int argc, char** argv) {
     c->add_option("--out,-o", rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
     c->add_option("--radius-mm", radius_mm, "A spray within this of a defect's centre marks it")->check(CLI::PositiveNumber);
     c->add_flag("--one-predictor", one_predictor, "Replay with the configured predictor only (default: both, same frames)");
+    c->add_flag("--no-arm", no_arm, "Do not draw the simulated arm into synthetic frames (it occludes macro-features in closed loop)");
     c->add_flag("--quiet,-q", quiet, "No progress lines");
   }
 
@@ -628,6 +629,7 @@ int main(int argc, char** argv) {
       rig::ReplayOptions options;
       options.progress = !quiet;
       options.both_predictors = !one_predictor;
+      options.draw_arm = !no_arm;
       options.radius = radius_mm / 1000.0;
       if (*replay) return replay_command(*config, replay_recording, rig_out, options);
       if (scanner_file.empty())

@@ -1,5 +1,6 @@
 #include "markcell/vision/render.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <stdexcept>
@@ -162,23 +163,32 @@ double texture(double x, double y) {
   return (a * (1 - sx) + b * sx) * (1 - sy) + (c * (1 - sx) + d * sx) * sy;
 }
 
-// Distance along a unit ray from the origin to an occluder, or -1. The capsule is drawn
-// as 17 overlapping spheres along its axis: a smooth limb as long as its length is
-// under 16 radii, which the rig's occluders respect.
-double hit_capsule(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Occluder& c) {
-  const Eigen::Vector3d ab = c.b_CamR - c.a_CamR;
-  double best = -1;
-  for (int k = 0; k <= 16; ++k) {
-    const Eigen::Vector3d centre = c.a_CamR + ab * (static_cast<double>(k) / 16.0);
-    const Eigen::Vector3d oc = o - centre;
-    const double b = oc.dot(d);
-    const double cc = oc.squaredNorm() - c.radius * c.radius;
-    const double disc = b * b - cc;
-    if (disc < 0) continue;
-    const double t = -b - std::sqrt(disc);
-    if (t > 0 && (best < 0 || t < best)) best = t;
+// The closest approach of the ray {s d: s >= 0} (d unit, from the camera's centre) and the
+// segment [a, b]: their distance, and how far along the ray it is. Alternating
+// projection, twice: exact for a non-parallel pair, within a hair otherwise.
+struct RaySegment {
+  double distance = 0;
+  double along = 0;
+};
+RaySegment ray_segment(const Eigen::Vector3d& d, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  const Eigen::Vector3d v = b - a;
+  const double vv = std::max(v.squaredNorm(), 1e-12);
+  double s = std::max(0.0, d.dot(a));
+  double t = 0;
+  for (int k = 0; k < 2; ++k) {
+    t = std::clamp((s * d - a).dot(v) / vv, 0.0, 1.0);
+    s = std::max(0.0, d.dot(a + t * v));
   }
-  return best;
+  return {(s * d - (a + t * v)).norm(), s};
+}
+
+// Distance along a unit ray from the camera's centre to a capsule (an occluder in that
+// camera's frame), or -1 when it misses.
+double hit_capsule(const Eigen::Vector3d& d, const Occluder& c) {
+  const RaySegment r = ray_segment(d, c.a_CamR, c.b_CamR);
+  if (r.distance >= c.radius) return -1;
+  const double t = r.along - std::sqrt(c.radius * c.radius - r.distance * r.distance);
+  return t > 0 ? t : -1;
 }
 
 }  // namespace
@@ -235,7 +245,7 @@ void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eige
       depth = t;
     }
     for (const auto& oc : occ_Cam) {
-      const double to = hit_capsule(Eigen::Vector3d::Zero(), d_Cam, oc);
+      const double to = hit_capsule(d_Cam, oc);
       if (to > 0 && to < depth) {
         depth = to;
         grey = oc.grey;
@@ -244,6 +254,57 @@ void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eige
     return grey;
   };
   cast(camera, X_CamR_Panel, seed, exposure, shade, out);
+}
+
+bool hides(const Occluder& c, const Eigen::Vector3d& p_Cam) {
+  const double range = p_Cam.norm();
+  if (range < 1e-9) return false;
+  const RaySegment r = ray_segment(p_Cam / range, c.a_CamR, c.b_CamR);
+  return r.distance < c.radius && r.along < range;
+}
+
+void StereoRenderer::paint_view(int camera, const Occluder* occluders, std::size_t count, cv::Mat& image) const noexcept {
+  const CameraModel& c = camera == 0 ? rig_.left : rig_.right;
+  if (image.type() != CV_8UC1 || image.cols != c.width || image.rows != c.height) return;
+  const Eigen::Isometry3d X_Cam_CamR = camera == 0 ? rig_.X_CamR_CamL.inverse() : Eigen::Isometry3d::Identity();
+  const cv::Mat& rays = rays_[static_cast<std::size_t>(camera)];
+  const double f = c.K(0, 0);
+  for (std::size_t k = 0; k < count; ++k) {
+    const Occluder& o = occluders[k];
+    const Eigen::Vector3d a = X_Cam_CamR * o.a_CamR, b = X_Cam_CamR * o.b_CamR;
+    if (a.z() < 0.1 || b.z() < 0.1) continue;  // at or behind the lens: not a rig arm
+    // The image box: both ends' projections, grown by the radius at the nearer end.
+    const Eigen::Vector2d pa = project_point(c, a), pb = project_point(c, b);
+    const double grow = f * o.radius / std::min(a.z(), b.z()) + 3.0;
+    const int u0 = std::max(0, static_cast<int>(std::floor(std::min(pa.x(), pb.x()) - grow)));
+    const int u1 = std::min(c.width - 1, static_cast<int>(std::ceil(std::max(pa.x(), pb.x()) + grow)));
+    const int v0 = std::max(0, static_cast<int>(std::floor(std::min(pa.y(), pb.y()) - grow)));
+    const int v1 = std::min(c.height - 1, static_cast<int>(std::ceil(std::max(pa.y(), pb.y()) + grow)));
+    const double pixel = std::max(a.z(), b.z()) / f * 1.5;  // a pixel's footprint at the capsule, generously
+    for (int v = v0; v <= v1; ++v) {
+      const cv::Vec3f* rr = rays.ptr<cv::Vec3f>(v);
+      std::uint8_t* row = image.ptr<std::uint8_t>(v);
+      for (int u = u0; u <= u1; ++u) {
+        // The pixel's middle sample decides inside and outside; only edge pixels sample all 8.
+        const cv::Vec3f& m = rr[u * kSamples + kSamples / 2];
+        const double dm = ray_segment(Eigen::Vector3d(m[0], m[1], m[2]), a, b).distance;
+        int covered = 0;
+        if (dm < o.radius - pixel) covered = kSamples;
+        else if (dm < o.radius + pixel)
+          for (int sidx = 0; sidx < kSamples; ++sidx) {
+            const cv::Vec3f& r = rr[u * kSamples + sidx];
+            covered += ray_segment(Eigen::Vector3d(r[0], r[1], r[2]), a, b).distance < o.radius ? 1 : 0;
+          }
+        if (covered == 0) continue;
+        row[u] = static_cast<std::uint8_t>((row[u] * (kSamples - covered) + o.grey * covered + kSamples / 2) / kSamples);
+      }
+    }
+  }
+}
+
+void StereoRenderer::paint_occluders(const Occluder* occluders, std::size_t count, cv::Mat& left, cv::Mat& right) const noexcept {
+  paint_view(0, occluders, count, left);
+  paint_view(1, occluders, count, right);
 }
 
 void StereoRenderer::render_board(int cols, int rows, double square, const Eigen::Isometry3d& X_CamR_Board,

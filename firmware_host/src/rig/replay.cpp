@@ -62,6 +62,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
 
   Cell cell(cfg, ClockKind::kSimulated);
   cell.enable_command_log(std::size_t{1} << 18);
+  if (options.draw_arm && !rec.truth().empty()) cell.draw_sim_arm_in_frames();
   cell.start();
   const int present = cell.gpio_line(LineRole::kPlcPanelPresent);
   const bool present_low = cfg.gpio.lines[static_cast<std::size_t>(present)].active_low;

@@ -121,7 +121,9 @@ std::string run_json(const PredictorRun& r, const std::string& ind) {
   o << ind << "\"panel\": {\"id\": " << quote(r.panel.panel_id.view()) << ", \"fault\": " << (r.panel.fault ? "true" : "false")
     << ", \"reason\": " << quote(r.panel.reason.view()) << "},\n";
   o << ind << "\"vision\": {\"frames\": " << r.vision.frames << ", \"dropped\": " << r.vision.dropped
-    << ", \"poses\": " << r.vision.poses << ", \"skipped\": " << r.frames_skipped << "},\n";
+    << ", \"poses\": " << r.vision.poses << ", \"skipped\": " << r.frames_skipped
+    << ", \"arm_drawn\": " << r.vision.arm_drawn << ", \"arm_hid_pairs\": " << r.vision.arm_hid_pairs
+    << ", \"arm_hidden_mfs\": " << r.vision.arm_hidden_mfs << "},\n";
   o << ind << "\"sprays\": [";
   for (std::size_t i = 0; i < r.score.sprays.size(); ++i) {
     const auto& s = r.score.sprays[i];

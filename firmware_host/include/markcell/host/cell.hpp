@@ -25,6 +25,10 @@
 
 namespace markcell::host {
 
+namespace rig {
+class ArmOverlay;
+}
+
 // Every task this build provides, in the order they are documented.
 const std::vector<std::string>& task_catalog();
 
@@ -53,6 +57,11 @@ struct VisionStats {
   std::uint64_t dropped = 0;   // pairs the source could not deliver (each reported)
   std::uint64_t poses = 0;
   std::uint64_t stalls = 0;
+  // The rig's arm drawn into the frames (rig/arm_view.hpp): pairs it was drawn into, those
+  // where it hid at least one MF, and the MFs hidden summed over pairs.
+  std::uint64_t arm_drawn = 0;
+  std::uint64_t arm_hid_pairs = 0;
+  std::uint64_t arm_hidden_mfs = 0;
 };
 
 class Cell {
@@ -97,6 +106,11 @@ class Cell {
   void enable_command_log(std::size_t capacity);
   // Replaces the configured frame source (before start()): tests, benchmarks.
   void use_frame_source(std::unique_ptr<vision::FrameSource> source);
+  // The rig (before start()): the simulated arm drawn into every stereo pair the vision
+  // task takes, from its tool pose in closed loop (rig/arm_view.hpp). Simulated arm and
+  // the vision task only.
+  void draw_sim_arm_in_frames();
+  const rig::ArmOverlay* arm_overlay() const { return arm_overlay_.get(); }
   std::string command_log_text() const;
   // The marking sequence and the vision task (null when not in the task table).
   control::MarkingSequence* marking() { return marking_.get(); }
@@ -122,6 +136,7 @@ class Cell {
     drivers::SimCanWire wire;
     std::unique_ptr<drivers::SimCanArm> arm;
     control::SprayValve* valve = nullptr;
+    rig::ArmOverlay* overlay = nullptr;  // the arm's pose to the frames' painter
     bool valve_was_open = false;
     std::array<SimSpray, 256> sprays{};
     std::size_t spray_count = 0;
@@ -140,6 +155,7 @@ class Cell {
   };
   struct VisionTask {
     vision::FrameSource* source = nullptr;
+    rig::ArmOverlay* overlay = nullptr;  // the rig's arm painted over each pair
     std::vector<std::unique_ptr<vision::PanelTracker>> trackers;  // one per panel type
     TripleBuffer<vision::PoseEstimate>* estimates = nullptr;
     TripleBuffer<control::TrackerRequest>* requests = nullptr;
@@ -161,6 +177,7 @@ class Cell {
   Eigen::Isometry3d X_Base_CamR_ = Eigen::Isometry3d::Identity();
   std::vector<vision::PanelTypeModel> panel_models_;
   std::unique_ptr<vision::FrameSource> frame_source_;
+  std::unique_ptr<rig::ArmOverlay> arm_overlay_;
   std::unique_ptr<TripleBuffer<vision::PoseEstimate>> estimates_;
   std::unique_ptr<TripleBuffer<control::TrackerRequest>> tracker_requests_;
   std::unique_ptr<VisionTask> vision_;

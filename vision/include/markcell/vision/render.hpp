@@ -61,6 +61,10 @@ struct Occluder {
   std::uint8_t grey = 25;
 };
 
+// True when the capsule (in a camera's frame) lies on the line of sight from that
+// camera's centre to the point p_Cam, in front of it.
+bool hides(const Occluder& capsule_Cam, const Eigen::Vector3d& p_Cam);
+
 struct RenderSettings {
   double panel_grey = 150;      // e-coat albedo as the grey level under full light
   double background_grey = 40;
@@ -83,6 +87,11 @@ class StereoRenderer {
   // at the origin, x along the columns, y along the rows, z out of the printed face.
   void render_board(int cols, int rows, double square, const Eigen::Isometry3d& X_CamR_Board, std::uint64_t seed,
                     cv::Mat& left, cv::Mat& right) const;
+  // Paints capsules (CamR frame) over two existing views, in front of whatever they show
+  // (the rig's arm is always between the cameras and the panel): 8 samples per pixel at
+  // their edges, flat grey, no noise. Bounded (the capsules' image boxes) and
+  // allocation-free: for drawing the simulated arm into replayed frames in closed loop.
+  void paint_occluders(const Occluder* occluders, std::size_t count, cv::Mat& left, cv::Mat& right) const noexcept;
   // Where the camera model puts a point (camera 0 = left, 1 = right), distortion included.
   Eigen::Vector2d project(int camera, const Eigen::Vector3d& p_CamR) const;
 
@@ -90,6 +99,7 @@ class StereoRenderer {
   template <typename Shade>
   void cast(int camera, const Eigen::Isometry3d& X_CamR_Object, std::uint64_t seed, double exposure, Shade&& shade,
             cv::Mat& out) const;
+  void paint_view(int camera, const Occluder* occluders, std::size_t count, cv::Mat& image) const noexcept;
   void render_view(int camera, const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
                    std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const;
   StereoCalibration rig_;

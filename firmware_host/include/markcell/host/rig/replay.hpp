@@ -27,6 +27,9 @@ struct ReplayOptions {
   bool both_predictors = true;      // also replay with the predictor not configured
   Nanos tail = seconds(15);         // simulated time after the last frame for the panel to finish
   double radius = 0.010;            // a spray within this of a defect's centre marks it, m
+  // Synthetic recordings (with ground truth): the simulated arm drawn into the frames in
+  // closed loop (rig/arm_view.hpp). Real recordings show the real arm already.
+  bool draw_arm = true;
 };
 
 struct TimedPoint {

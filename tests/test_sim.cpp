@@ -73,6 +73,18 @@ const std::string& sim_dir() {
   done = true;
   return out;
 }
+
+// A recording's pairs decoded into memory, times from its first frame: for runs whose
+// measured part must not decode images (the recording's loader allocates).
+std::vector<vision::MemoryFrameSource::Pair> decoded_pairs(const vision::Recording& rec) {
+  std::vector<vision::MemoryFrameSource::Pair> pairs;
+  for (std::size_t i = 0; i < rec.size(); ++i) {
+    auto f = rec.read(i);
+    REQUIRE_FALSE(f.dropped);
+    pairs.push_back({f.seq, f.time - rec.entry(0).time, f.left, f.right});
+  }
+  return pairs;
+}
 }  // namespace
 
 TEST_CASE("markcell sim paper-door: all three dings marked within the radius, no false spray, Table I below the paper's") {
@@ -225,12 +237,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   // The short recording's frames decoded into memory first: the measured part must not
   // decode images (the recording's loader is a device twin that allocates).
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
-  std::vector<vision::MemoryFrameSource::Pair> pairs;
-  for (std::size_t i = 0; i < rec.size(); ++i) {
-    auto f = rec.read(i);
-    REQUIRE_FALSE(f.dropped);
-    pairs.push_back({f.seq, f.time - rec.entry(0).time, f.left, f.right});
-  }
+  std::vector<vision::MemoryFrameSource::Pair> pairs = decoded_pairs(rec);
   auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
   cfg.watchdog.systemd = false;
   cfg.executive.lock_memory = false;
@@ -261,14 +268,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
 
 TEST_CASE("a panel's result is written and synced before the PLC hears done; without it the PLC gets fault") {
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
-  auto pairs = [&] {
-    std::vector<vision::MemoryFrameSource::Pair> p;
-    for (std::size_t i = 0; i < rec.size(); ++i) {
-      auto f = rec.read(i);
-      p.push_back({f.seq, f.time - rec.entry(0).time, f.left, f.right});
-    }
-    return p;
-  };
+  const auto pairs = [&] { return decoded_pairs(rec); };
   test::TempDir dir;
   auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
   cfg.watchdog.systemd = false;
@@ -488,12 +488,7 @@ TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, 
   // The short recording's frames in memory, replayed as panel after panel by one cell:
   // the PLC brings each panel in, its record arrives, the cell marks it, the panel leaves.
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
-  std::vector<vision::MemoryFrameSource::Pair> pairs;
-  for (std::size_t i = 0; i < rec.size(); ++i) {
-    auto f = rec.read(i);
-    REQUIRE_FALSE(f.dropped);
-    pairs.push_back({f.seq, f.time - rec.entry(0).time, f.left, f.right});
-  }
+  std::vector<vision::MemoryFrameSource::Pair> pairs = decoded_pairs(rec);
   const Nanos time_base = rec.entry(0).time;
   auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
   cfg.watchdog.systemd = false;

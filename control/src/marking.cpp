@@ -148,8 +148,9 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
   return TaskResult::kOk;
 }
 
-void MarkingSequence::start_panel(Nanos now) {
-  present_since_ = -1;
+void MarkingSequence::take_job(Nanos now) {
+  // The waiting record becomes the panel's job (the mailbox is free for the next) and its
+  // result starts: every defect listed, none yet sprayed or skipped.
   job_ = mailbox_;
   job_waiting_.store(false, std::memory_order_release);
   result_ = PanelResult{};
@@ -158,6 +159,11 @@ void MarkingSequence::start_panel(Nanos now) {
   result_.started = now;
   result_.defect_count = job_.defect_count;
   for (int i = 0; i < job_.defect_count; ++i) result_.defects[static_cast<std::size_t>(i)].id = job_.defects[static_cast<std::size_t>(i)].id;
+}
+
+void MarkingSequence::start_panel(Nanos now) {
+  present_since_ = -1;
+  take_job(now);
   set_plc(plc_.done, false);
   set_plc(plc_.fault, false);
   fault_until_next_panel_ = false;
@@ -385,21 +391,11 @@ void MarkingSequence::record_without_panel(Nanos now) {
   // The record is taken off the mailbox and answered, so the next one (the next panel's)
   // is not held behind it; nothing moved.
   record_since_ = -1;
-  job_ = mailbox_;
-  job_waiting_.store(false, std::memory_order_release);
-  result_ = PanelResult{};
-  result_.serial = completed_.load(std::memory_order_relaxed) + 1;
-  result_.panel_id = job_.panel_id.view();
-  result_.started = now;
+  take_job(now);
   result_.fault = true;
   result_.reason.assign("inspection record expired: its panel never came");
   fault_until_next_panel_ = true;  // no panel to release it: the PLC sees it until the next comes
-  result_.defect_count = job_.defect_count;
-  for (int i = 0; i < job_.defect_count; ++i) {
-    auto& d = result_.defects[static_cast<std::size_t>(i)];
-    d.id = job_.defects[static_cast<std::size_t>(i)].id;
-    d.skipped = SkipReason::kNoPanel;
-  }
+  for (int i = 0; i < job_.defect_count; ++i) result_.defects[static_cast<std::size_t>(i)].skipped = SkipReason::kNoPanel;
   finish_panel(now);
 }
 

@@ -183,6 +183,7 @@ class MarkingSequence {
   void plan_panel(Nanos now);
   void panel_without_record(Nanos now);
   void record_without_panel(Nanos now);
+  void take_job(Nanos now);
   void report_to_plc();
   void fail_panel(Nanos now, std::string_view reason, SkipReason skip);
   void set_plc(int line, bool value);

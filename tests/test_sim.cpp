@@ -74,6 +74,16 @@ const std::string& sim_dir() {
   return out;
 }
 
+// The example configuration for a cell inside the test process: no service manager, no
+// memory locking, no real-time priorities (simulated time needs none).
+host::CellConfig in_process_config() {
+  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  cfg.watchdog.systemd = false;
+  cfg.executive.lock_memory = false;
+  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  return cfg;
+}
+
 // A recording's pairs decoded into memory, times from its first frame: for runs whose
 // measured part must not decode images (the recording's loader allocates).
 std::vector<vision::MemoryFrameSource::Pair> decoded_pairs(const vision::Recording& rec) {
@@ -238,10 +248,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   // decode images (the recording's loader is a device twin that allocates).
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
   std::vector<vision::MemoryFrameSource::Pair> pairs = decoded_pairs(rec);
-  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
-  cfg.watchdog.systemd = false;
-  cfg.executive.lock_memory = false;
-  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  auto cfg = in_process_config();
   host::Cell cell(cfg, host::ClockKind::kSimulated);
   cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(std::move(pairs), cfg.cameras.latency));
   const auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
@@ -270,10 +277,7 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done; wit
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
   const auto pairs = [&] { return decoded_pairs(rec); };
   test::TempDir dir;
-  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
-  cfg.watchdog.systemd = false;
-  cfg.executive.lock_memory = false;
-  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  auto cfg = in_process_config();
   cfg.results_file = (dir.path() / "results.jsonl").string();
   const auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
   for (const bool write : {true, false}) {
@@ -400,10 +404,7 @@ TEST_CASE("the record drop folder: records taken in name order, bad ones and dup
 }
 
 TEST_CASE("a panel without an inspection record: PLC fault after the record timeout, the arm never moves, the result says so") {
-  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
-  cfg.watchdog.systemd = false;
-  cfg.executive.lock_memory = false;
-  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  auto cfg = in_process_config();
   REQUIRE(cfg.marking.record_timeout == seconds(5));
   host::Cell cell(cfg, host::ClockKind::kSimulated);
   cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(std::vector<vision::MemoryFrameSource::Pair>{}, cfg.cameras.latency));
@@ -440,10 +441,7 @@ TEST_CASE("a panel without an inspection record: PLC fault after the record time
 }
 
 TEST_CASE("a record without a panel expires: its result a fault with the reason, the PLC's fault held until the next panel") {
-  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
-  cfg.watchdog.systemd = false;
-  cfg.executive.lock_memory = false;
-  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  auto cfg = in_process_config();
   REQUIRE(cfg.marking.record_expiry == seconds(300));
   cfg.marking.record_expiry = seconds(20);
   host::Cell cell(cfg, host::ClockKind::kSimulated);
@@ -490,10 +488,7 @@ TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, 
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
   std::vector<vision::MemoryFrameSource::Pair> pairs = decoded_pairs(rec);
   const Nanos time_base = rec.entry(0).time;
-  auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
-  cfg.watchdog.systemd = false;
-  cfg.executive.lock_memory = false;
-  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;
+  auto cfg = in_process_config();
   host::Cell cell(cfg, host::ClockKind::kSimulated);
   auto memory = std::make_unique<vision::MemoryFrameSource>(std::move(pairs), cfg.cameras.latency);
   vision::MemoryFrameSource& source = *memory;

@@ -706,3 +706,32 @@ TEST_CASE("killed with SIGKILL mid-panel and restarted: earlier results intact, 
   CHECK(third.exit_code == 0);
   CHECK(lines_of(read_file(s.results.string())).size() == 5);
 }
+
+TEST_CASE("replay with a scripted PLC: an e-stop mid-panel ends it, nothing sprayed after, every defect skipped with the reason") {
+  test::TempDir dir;
+  const std::string script = dir.write("estop.txt", "# the operator hits the e-stop as the arm approaches\n0.8 plc_estop 1\n");
+  const std::string out = (dir.path() / "estop").string();
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + sim_dir() +
+                             "/recording --one-predictor -q --plc-script " + script + " --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  const std::string json = read_file(out + "/report.json");
+  INFO(json);
+  // The first ding is sprayed at 0.70 s, before the stop; the other two never are.
+  CHECK(json_number(json, "defects", "sprayed") == 1);
+  CHECK(json_number(json, "defects", "skipped") == 2);
+  CHECK(json_number(json, "false_sprays", "false_sprays") == 0);
+  CHECK(json.find("stopped before the defect's turn (safe stop or panel left)") != std::string::npos);
+  CHECK(json.find("t=0.801 s operator_stop plc_estop: e-stop input active") != std::string::npos);
+  const std::string log = read_file(out + "/commands.log");
+  const auto open = log.find("valve open");
+  REQUIRE(open != std::string::npos);
+  CHECK(log.find("valve open", open + 1) == std::string::npos);  // one pulse, the one before the stop
+  // A script with a mistake is refused before the replay starts.
+  const std::string bad = dir.write("bad.txt", "0.8 plc_estop on\n");
+  const auto refused = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + sim_dir() +
+                                   "/recording -q --plc-script " + bad + " --out " + out);
+  INFO(refused.output);
+  CHECK(refused.exit_code == 2);
+  CHECK(refused.output.find(bad + ":1: level 'on' must be 0 or 1") != std::string::npos);
+}

@@ -205,7 +205,8 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
     s.predicted_CamR = predictor_.ready() ? Eigen::Vector3d(predictor_.predict(e.time) * c) : s.estimated_CamR;
     ++prediction_count_;
   }
-  predictor_.update(e.time, e.X_CamR_P);
+  // The fit's quality as the filter's measurement noise: the panel's MFs over those used.
+  predictor_.update(e.time, e.X_CamR_P, e.inliers > 0 ? static_cast<double>(e.count) / e.inliers : 1.0);
   if (state_ == MarkingState::kAcquire && predictor_.ready()) next_defect(now);
   if (!planned_ && ++poses_since_intercal_ >= params_.plan_after_poses &&
       (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying))

@@ -33,7 +33,7 @@ Eigen::Isometry3d PosePredictor::compose(const Eigen::Vector3d& anchor_CamR, con
   return X;
 }
 
-void PosePredictor::update(Nanos time, const Eigen::Isometry3d& X) {
+void PosePredictor::update(Nanos time, const Eigen::Isometry3d& X, double noise_scale) {
   if (count_ > 0 && time <= last_time_) return;
   const Eigen::Vector3d p = X * anchor_P_;
   if (count_ == 0) {
@@ -69,6 +69,7 @@ void PosePredictor::update(Nanos time, const Eigen::Isometry3d& X) {
     Eigen::Matrix<double, 6, 6> Rm = Eigen::Matrix<double, 6, 6>::Zero();
     const double lat2 = params_.lateral_sigma * params_.lateral_sigma, dep2 = params_.depth_sigma * params_.depth_sigma;
     Rm.diagonal() << lat2, lat2, dep2, Eigen::Vector3d::Constant(params_.rotation_sigma * params_.rotation_sigma);
+    Rm *= noise_scale * noise_scale;
     const Eigen::Matrix<double, 6, 6> S = H * P_ * H.transpose() + Rm;
     const Eigen::Matrix<double, 12, 6> K = P_ * H.transpose() * S.inverse();
     x_ += K * (z - H * x_);

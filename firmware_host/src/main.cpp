@@ -208,18 +208,15 @@ int run_command(const std::string& file, const std::string& clock_name, double s
   };
 
   // The scripted PLC: every event due by `elapsed` (since the start) applied, in order.
-  std::size_t next_event = 0;
+  PlcScript script(std::move(plc_events));
   const auto apply_plc_events = [&](Nanos elapsed) {
-    for (; next_event < plc_events.size() && plc_events[next_event].at <= elapsed; ++next_event) {
-      const PlcEvent& ev = plc_events[next_event];
+    script.apply_due(elapsed, [&](const PlcEvent& ev) {
       cell.drive_sim_input(ev.line, ev.level);
       std::fprintf(stderr, "<6>markcell: plc-script t=%.3f s %s=%d\n", to_seconds(ev.at),
                    std::string(to_string(ev.line)).c_str(), ev.level ? 1 : 0);
-    }
+    });
   };
-  const auto next_event_after = [&](Nanos elapsed) {  // time to the next event, capped
-    return next_event < plc_events.size() ? std::max<Nanos>(0, plc_events[next_event].at - elapsed) : kNanosPerSecond;
-  };
+  const auto next_event_after = [&](Nanos elapsed) { return script.until_next(elapsed, kNanosPerSecond); };
 
   std::string stop_reason = "duration elapsed";
   if (simulated) {
@@ -544,6 +541,7 @@ int main(int argc, char** argv) {
   std::uint64_t sim_seed = 1;
   double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
   bool one_predictor = false, quiet = false, no_arm = false;
+  std::string rig_plc_script;
   auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
   sim->add_option("SCENARIO", sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
       ->required();
@@ -558,6 +556,8 @@ int main(int argc, char** argv) {
     c->add_option("--out,-o", rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
     c->add_option("--radius-mm", radius_mm, "A spray within this of a defect's centre marks it")->check(CLI::PositiveNumber);
     c->add_flag("--one-predictor", one_predictor, "Replay with the configured predictor only (default: both, same frames)");
+    c->add_option("--plc-script", rig_plc_script, "PLC inputs during the replay ('SECONDS LINE 0|1' per line, from the start): an e-stop, a panel leaving early")
+        ->check(CLI::ExistingFile);
     c->add_flag("--no-arm", no_arm, "Do not draw the simulated arm into synthetic frames (it occludes macro-features in closed loop)");
     c->add_flag("--quiet,-q", quiet, "No progress lines");
   }
@@ -630,6 +630,14 @@ int main(int argc, char** argv) {
       options.progress = !quiet;
       options.both_predictors = !one_predictor;
       options.draw_arm = !no_arm;
+      if (!rig_plc_script.empty()) {
+        try {
+          options.plc_events = load_plc_script(rig_plc_script);
+        } catch (const std::exception& e) {
+          std::cerr << "markcell: " << e.what() << "\n";
+          return kExitConfig;
+        }
+      }
       options.radius = radius_mm / 1000.0;
       if (*replay) return replay_command(*config, replay_recording, rig_out, options);
       if (scanner_file.empty())

@@ -82,10 +82,25 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
                  to_seconds(t), to_seconds(end), std::string(control::to_string(marking.state())).c_str(), sprayed,
                  p.defect_count, static_cast<unsigned long long>(cell.vision_stats()->frames), tty ? "   " : "\n");
   };
-  auto run_to = [&](Nanos t) {
+  PlcScript script(options.plc_events);
+  const auto run_until = [&](Nanos t) {
     if (clock.run_until(t) == control::SimClock::RunResult::kWedged)
       throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock.global_now())) + " s");
   };
+  // Simulated time runs to `t`, stopping at each scripted PLC event on the way (the
+  // simulated clock starts at 0: script times are from the start).
+  const auto drive = [&](const PlcEvent& ev) { cell.drive_sim_input(ev.line, ev.level); };
+  auto run_to = [&](Nanos t) {
+    for (;;) {
+      const Nanos now = clock.global_now();
+      const Nanos wait = script.until_next(now, t - now + 1);  // past t when none is left
+      if (now + wait > t) break;
+      run_until(now + std::max<Nanos>(wait, 1));
+      script.apply_due(clock.global_now(), drive);
+    }
+    run_until(t);
+  };
+  script.apply_due(0, drive);
   for (Nanos t = seconds(1); marking.panels_completed() == 0; t += seconds(1)) {
     run_to(std::min(t, end));
     progress(clock.global_now());

@@ -39,7 +39,9 @@ class PosePredictor {
   // A new panel frame P: forget everything; follow `anchor_P`.
   void reset(const Eigen::Vector3d& anchor_P);
   // A pose measured at `time` (the frame's capture time). Older or equal times are ignored.
-  void update(Nanos time, const Eigen::Isometry3d& X_CamR_P);
+  // `noise_scale` multiplies the measurement's standard deviations (Kalman): a pose fitted
+  // to fewer of the panel's MFs is trusted less.
+  void update(Nanos time, const Eigen::Isometry3d& X_CamR_P, double noise_scale = 1.0);
   // At least two measurements (two-frame) or one (Kalman) have arrived.
   bool ready() const;
   Eigen::Isometry3d predict(Nanos time) const;

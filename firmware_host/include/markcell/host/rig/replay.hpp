@@ -12,6 +12,8 @@
 #include <string>
 #include <vector>
 
+#include "markcell/host/plc_script.hpp"
+
 #include <Eigen/Geometry>
 
 #include "markcell/control/marking.hpp"
@@ -30,6 +32,9 @@ struct ReplayOptions {
   // Synthetic recordings (with ground truth): the simulated arm drawn into the frames in
   // closed loop (rig/arm_view.hpp). Real recordings show the real arm already.
   bool draw_arm = true;
+  // The PLC's inputs scripted on top of the panel-present line the replay drives itself
+  // (markcell/host/plc_script.hpp): an e-stop, a cycle disable, a panel leaving early.
+  std::vector<PlcEvent> plc_events;
 };
 
 struct TimedPoint {

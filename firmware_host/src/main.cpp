@@ -424,10 +424,6 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     model = rig::reference_panel_type(s, cal, vision::RenderSettings{}, &reference);
     if (!image.empty()) cv::imwrite(image, reference);
   } else {
-    if (image.empty() || panel.empty()) {
-      std::cerr << "markcell select-mfs: give --image FILE and --panel NAME (or use --from-scenario)\n";
-      return kExitConfig;
-    }
     const cv::Mat img = cv::imread(image, cv::IMREAD_GRAYSCALE);
     if (img.empty()) {
       std::cerr << "markcell select-mfs: --image " << image << ": cannot read it as an image\n";

@@ -372,10 +372,8 @@ void Cell::start() {
   if (sim_gpio_ != nullptr) {
     // The simulated PLC enables the cycle and keeps the e-stop released, as a line does
     // when it runs; scenarios script the rest.
-    const int enable = gpio_line(LineRole::kPlcCycleEnable);
-    const int estop = gpio_line(LineRole::kPlcEstop);
-    sim_gpio_->drive_physical(enable, !config_.gpio.lines[static_cast<std::size_t>(enable)].active_low);
-    sim_gpio_->drive_physical(estop, config_.gpio.lines[static_cast<std::size_t>(estop)].active_low);
+    drive_sim_input(LineRole::kPlcCycleEnable, true);
+    drive_sim_input(LineRole::kPlcEstop, false);
   }
   if (watchdog_device_) watchdog_device_->activate();
   if (sim_world_) sim_world_->arm->start(clock_->now(0));

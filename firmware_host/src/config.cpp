@@ -253,7 +253,6 @@ class Reader {
     out = v;
   }
 
-  // A file path, resolved against the config file's folder; it must exist.
   // A path relative to the configuration's folder that must name an existing file (or,
   // with `folder`, an existing folder).
   void existing_file(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out,

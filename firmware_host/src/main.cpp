@@ -16,7 +16,6 @@
 #include "markcell/host/capacity.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
-#include "markcell/host/json.hpp"
 #include "markcell/host/record.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/plc_script.hpp"
@@ -199,8 +198,7 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     std::fprintf(stderr, "<3>markcell: record rejected: %s (moved to %s)\n", ev->reason.c_str(), ev->file.c_str());
     if (results) {
       try {
-        results->append("{\"cell\": " + json_quote(config.name) + ", \"record\": " + json_quote(ev->file) +
-                        ", \"panel_id\": " + json_quote(ev->panel_id) + ", \"rejected\": " + json_quote(ev->reason) + "}");
+        results->append(ResultsFile::rejected_json(config.name, ev->file, ev->panel_id, ev->reason));
       } catch (const std::exception& e) {
         std::fprintf(stderr, "<3>markcell: %s\n", e.what());
       }

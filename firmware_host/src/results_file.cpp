@@ -77,6 +77,12 @@ std::string ResultsFile::accepted_json(const std::string& cell, const std::strin
          ", \"accepted\": true}";
 }
 
+std::string ResultsFile::rejected_json(const std::string& cell, const std::string& record, const std::string& panel_id,
+                                       const std::string& reason) {
+  return "{\"cell\": " + quote(cell) + ", \"record\": " + quote(record) + ", \"panel_id\": " + quote(panel_id) +
+         ", \"rejected\": " + quote(reason) + "}";
+}
+
 std::string ResultsFile::interrupted_json(const std::string& cell, const std::string& panel_id) {
   return "{\"cell\": " + quote(cell) + ", \"panel_id\": " + quote(panel_id) +
          ", \"interrupted\": true, \"fault\": true, \"reason\": "

@@ -64,9 +64,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   cell.enable_command_log(std::size_t{1} << 18);
   if (options.draw_arm && !rec.truth().empty()) cell.draw_sim_arm_in_frames();
   cell.start();
-  const int present = cell.gpio_line(LineRole::kPlcPanelPresent);
-  const bool present_low = cfg.gpio.lines[static_cast<std::size_t>(present)].active_low;
-  cell.sim_gpio()->drive_physical(present, !present_low);
+  cell.drive_sim_input(LineRole::kPlcPanelPresent, true);
   control::MarkingSequence& marking = *cell.marking();
   marking.offer_job(job);
   auto& source = static_cast<vision::RecordingFrameSource&>(*cell.frame_source());
@@ -107,7 +105,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     if (t >= end) break;
   }
   // The panel leaves the station with the recording's end.
-  cell.sim_gpio()->drive_physical(present, present_low);
+  cell.drive_sim_input(LineRole::kPlcPanelPresent, false);
   for (Nanos t = end + seconds(1); marking.panels_completed() == 0 && t <= end + options.tail; t += seconds(1)) {
     run_to(t);
     progress(t);

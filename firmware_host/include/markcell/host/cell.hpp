@@ -110,7 +110,6 @@ class Cell {
   // task takes, from its tool pose in closed loop (rig/arm_view.hpp). Simulated arm and
   // the vision task only.
   void draw_sim_arm_in_frames();
-  const rig::ArmOverlay* arm_overlay() const { return arm_overlay_.get(); }
   std::string command_log_text() const;
   // The marking sequence and the vision task (null when not in the task table).
   control::MarkingSequence* marking() { return marking_.get(); }

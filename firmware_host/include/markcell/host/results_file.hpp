@@ -27,6 +27,9 @@ class ResultsFile {
   // A record taken from the drop folder, written before its panel can start: if the
   // process dies before the panel's result, the next start finds this line unanswered.
   static std::string accepted_json(const std::string& cell, const std::string& record, const std::string& panel_id);
+  // A record the drop folder rejected (moved to `record`), with the reason.
+  static std::string rejected_json(const std::string& cell, const std::string& record, const std::string& panel_id,
+                                   const std::string& reason);
   // The result written at start-up for such a panel: a fault, with the reason.
   static std::string interrupted_json(const std::string& cell, const std::string& panel_id);
 

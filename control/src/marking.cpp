@@ -203,6 +203,10 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
     s.defect = job_.defects[static_cast<std::size_t>(defect_)].id;
     s.estimated_CamR = e.X_CamR_P * c;
     s.predicted_CamR = predictor_.ready() ? Eigen::Vector3d(predictor_.predict(e.time) * c) : s.estimated_CamR;
+    s.reference_time = e.reference_time;
+    s.centre_P = c;
+    s.inliers = e.inliers;
+    s.count = e.count;
     ++prediction_count_;
   }
   // The fit's quality as the filter's measurement noise: the panel's MFs over those used.

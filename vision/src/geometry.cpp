@@ -5,6 +5,8 @@
 
 #include <Eigen/SVD>
 
+#include "markcell/common/splitmix.hpp"
+
 namespace markcell::vision {
 
 Eigen::Vector3d triangulate(const ProjectionMatrix& P1, const ProjectionMatrix& P2, const Eigen::Vector2d& x1,
@@ -51,27 +53,13 @@ RigidFit fit_rigid(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Ve
   return fit;
 }
 
-namespace {
-// SplitMix64: a tiny, seeded, allocation-free generator with the same sequence on every
-// platform (std:: distributions are not specified bit for bit).
-struct SplitMix {
-  std::uint64_t state;
-  std::uint64_t next() {
-    std::uint64_t z = (state += 0x9E3779B97F4A7C15ULL);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
-    return z ^ (z >> 31);
-  }
-  std::size_t below(std::size_t n) { return static_cast<std::size_t>(next() % n); }
-};
-}  // namespace
 
 RigidFit fit_rigid_robust(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b,
                           const RobustFitOptions& options, std::span<bool> inlier) {
   const std::size_t n = std::min({a.size(), b.size(), inlier.size(), kMaxFitPoints});
   std::fill(inlier.begin(), inlier.end(), false);
   if (n < 3) return RigidFit{};
-  SplitMix rng{options.seed};
+  markcell::SplitMix rng{options.seed};
   const double thr2 = options.inlier_threshold * options.inlier_threshold;
   std::array<bool, kMaxFitPoints> best{};
   std::size_t best_count = 0;

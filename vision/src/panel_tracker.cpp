@@ -175,8 +175,10 @@ void PanelTracker::reset() {
 
 void PanelTracker::set_reference(int mf, const Eigen::Vector3d& p_P) {
   if (mf < 0 || mf >= model_.count) return;
-  reference_P_[static_cast<std::size_t>(mf)] = p_P;
-  known_[static_cast<std::size_t>(mf)] = true;
+  const auto k = static_cast<std::size_t>(mf);
+  reference_P_[k] = first_P_[k] = sum_P_[k] = p_P;
+  samples_[k] = 1;
+  known_[k] = true;
 }
 
 const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const cv::Mat& left, const cv::Mat& right) {
@@ -196,8 +198,13 @@ const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const c
   return estimate_;
 }
 
-bool PanelTracker::verify_pair(const Eigen::Vector2d& left, Eigen::Vector2d& right) const {
-  if (!refine_corner(right_, right, params_.corner_radius)) return false;
+bool PanelTracker::verify_pair(const Eigen::Vector2d& left, const Eigen::Vector2d& right) const {
+  // The right view must show the corner there too, but the pair's disparity is LK's: a
+  // photometric alignment of the left window onto the right view, whose error does not
+  // depend on where the corner falls between pixels. Two corner refinements, one per view,
+  // each carry their own sub-pixel bias (about 0.1 px) into the disparity: 2 mm of depth.
+  Eigen::Vector2d corner = right;
+  if (!refine_corner(right_, corner, params_.corner_radius) || (corner - right).norm() > params_.corner_agree_px) return false;
   const double d = rig_.epipolar_distance(rig_.undistort(Camera::kLeft, left), rig_.undistort(Camera::kRight, right));
   if (!(d <= params_.epipolar_px)) return false;
   const Eigen::Vector3d p = rig_.triangulate_observed(left, right);
@@ -233,7 +240,8 @@ bool PanelTracker::find_right(int mf, const Eigen::Vector2d& left, Eigen::Vector
   (void)mf;
   if (best < params_.min_ncc) return false;
   const LkResult lk = track_point(L, right_, left, best_p, params_.lk);
-  right = lk.status == LkStatus::kOk ? lk.point : best_p;
+  if (lk.status != LkStatus::kOk) return false;
+  right = lk.point;
   return verify_pair(left, right);
 }
 
@@ -286,7 +294,8 @@ void PanelTracker::reinitialise() {
     o.left = p;
     o.right = r;
     o.p_CamR = rig_.triangulate_observed(p, r);
-    reference_P_[k] = o.p_CamR;
+    reference_P_[k] = first_P_[k] = sum_P_[k] = o.p_CamR;
+    samples_[k] = 1;
     known_[k] = tracked_[k] = true;
     prev_left_[k] = p;
     prev_right_[k] = r;
@@ -311,6 +320,7 @@ void PanelTracker::reinitialise() {
   estimate_.status = TrackStatus::kReinitialised;
   estimate_.X_CamR_P = Eigen::Isometry3d::Identity();
   ++estimate_.reference_serial;
+  estimate_.reference_time = estimate_.time;
   searching_ = false;
   lost_frames_ = 0;
 }
@@ -394,6 +404,37 @@ void PanelTracker::fit_pose() {
   estimate_.X_CamR_P = fit.X_B_A;
   estimate_.inliers = fit.used;
   estimate_.rms = fit.rms;
+  refine_reference(fit.X_B_A);
+}
+
+void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
+  // One frame's triangulation fixes each MF's position in P to the stereo pair's depth
+  // noise; when the arm hides part of the set, the pose rests on a few MFs and their
+  // errors, levered out to a defect far from them, move it by several times as much. So
+  // every inlier's observation, taken back into P by the pose, is averaged into its
+  // position (Procrustes over frames). The averaged set is then laid onto the first one
+  // by a rigid fit, so that P stays where it was set up: the tool poses live in it.
+  const Eigen::Isometry3d X_P_CamR = X_CamR_P.inverse();
+  for (int i = 0; i < model_.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    if (!estimate_.mfs[k].inlier || !known_[k] || samples_[k] >= params_.reference_samples) continue;
+    sum_P_[k] += X_P_CamR * estimate_.mfs[k].p_CamR;
+    ++samples_[k];
+  }
+  std::array<Eigen::Vector3d, kMaxMacroFeatures> mean{}, first{};
+  std::size_t n = 0;
+  for (int i = 0; i < model_.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    if (!known_[k]) continue;
+    mean[n] = sum_P_[k] / samples_[k];
+    first[n++] = first_P_[k];
+  }
+  const RigidFit pin = fit_rigid(std::span(mean.data(), n), std::span(first.data(), n));
+  if (!pin.valid) return;
+  for (int i = 0; i < model_.count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    if (known_[k]) reference_P_[k] = pin.X_B_A * (sum_P_[k] / samples_[k]);
+  }
 }
 
 void PanelTracker::reacquire() {
@@ -410,7 +451,13 @@ void PanelTracker::reacquire() {
       continue;
     if (ncc(patch_[k], L, 0, static_cast<int>(std::lround(left.x())), static_cast<int>(std::lround(left.y()))) < params_.min_ncc)
       continue;
-    if (!refine_corner(L, left, params_.corner_radius) || !verify_pair(left, right)) continue;
+    if (!refine_corner(L, left, params_.corner_radius)) continue;
+    LkParams fine = params_.lk;
+    fine.max_levels = 1;  // the pose's projection is within a pixel or two
+    const LkResult lr = track_point(L, right_, left, right + (left - rig_.project(Camera::kLeft, p)), fine);
+    if (lr.status != LkStatus::kOk) continue;
+    right = lr.point;
+    if (!verify_pair(left, right)) continue;
     if ((rig_.triangulate_observed(left, right) - p).norm() > params_.inlier_m) continue;
     prev_left_[k] = left;
     prev_right_[k] = right;

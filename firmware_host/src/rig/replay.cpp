@@ -172,18 +172,30 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
       run.prediction_max_abs = run.prediction_max_abs ? run.prediction_max_abs->cwiseMax(e) : e;
     }
   }
-  double sq = 0;
+  double sq_pose = 0, sq_defect = 0;
   for (const auto& s : run.samples) {
     const auto c = true_centre(s.defect, s.time);
     run.truth_samples.push_back({s.time, c ? *c : Eigen::Vector3d::Zero()});
     run.one_frame_max_abs = run.one_frame_max_abs.cwiseMax((s.predicted_CamR - s.estimated_CamR).cwiseAbs());
     if (!c) continue;
-    const double e = (s.estimated_CamR - *c).norm();
+    // P is CamR at the frame that set it up: the truth moves the defect's centre in P from
+    // there to now.
+    const Eigen::Vector3d moved = truth.at(s.time) * truth.at(s.reference_time).inverse() * s.centre_P;
+    const double e = (s.estimated_CamR - moved).norm(), d = (s.estimated_CamR - *c).norm();
     run.pose_error_max = std::max(run.pose_error_max, e);
-    sq += e * e;
+    run.defect_error_max = std::max(run.defect_error_max, d);
+    sq_pose += e * e;
+    sq_defect += d * d;
     ++run.pose_samples;
+    if (s.inliers < s.count) {
+      run.pose_error_missing_max = std::max(run.pose_error_missing_max, e);
+      ++run.pose_samples_missing;
+    }
   }
-  if (run.pose_samples > 0) run.pose_error_rms = std::sqrt(sq / run.pose_samples);
+  if (run.pose_samples > 0) {
+    run.pose_error_rms = std::sqrt(sq_pose / run.pose_samples);
+    run.defect_error_rms = std::sqrt(sq_defect / run.pose_samples);
+  }
   return run;
 }
 

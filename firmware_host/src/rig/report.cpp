@@ -114,7 +114,10 @@ std::string run_json(const PredictorRun& r, const std::string& ind) {
     << ", \"status\": " << quote(control::to_string(ic.status)) << "},\n";
   o << ind << "\"pose_error_mm\": {\"max\": " << (r.pose_samples > 0 ? num(r.pose_error_max * 1000) : "null")
     << ", \"rms\": " << (r.pose_samples > 0 ? num(r.pose_error_rms * 1000) : "null") << ", \"samples\": " << r.pose_samples
-    << "},\n";
+    << ", \"missing_mfs_max\": " << (r.pose_samples_missing > 0 ? num(r.pose_error_missing_max * 1000) : "null")
+    << ", \"missing_mfs_samples\": " << r.pose_samples_missing << "},\n";
+  o << ind << "\"defect_error_mm\": {\"max\": " << (r.pose_samples > 0 ? num(r.defect_error_max * 1000) : "null")
+    << ", \"rms\": " << (r.pose_samples > 0 ? num(r.defect_error_rms * 1000) : "null") << "},\n";
   o << ind << "\"seconds_per_defect\": " << (c.sprayed > 0 ? num(r.seconds_per_defect) : "null") << ",\n";
   o << ind << "\"deadline_misses\": " << r.deadline_misses << ",\n";
   o << ind << "\"overruns\": " << r.overruns << ",\n";
@@ -388,8 +391,14 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
     const auto& m = r.panel.intercalibration.rms;
     return r.panel.intercalibration.inliers > 0 ? num(m.x() * 100, 2) + " " + num(m.y() * 100, 2) + " " + num(m.z() * 100, 2) : std::string("-");
   }, "0.86 0.45 1.16");
-  row("tracked defect error max / rms, mm", [](const PredictorRun& r) {
+  row("panel pose error max / rms, mm", [](const PredictorRun& r) {
     return r.pose_samples > 0 ? num(r.pose_error_max * 1000, 1) + " / " + num(r.pose_error_rms * 1000, 1) : std::string("-");
+  }, "-");
+  row("  with MFs missing, max, mm", [](const PredictorRun& r) {
+    return r.pose_samples_missing > 0 ? num(r.pose_error_missing_max * 1000, 1) : std::string("-");
+  }, "-");
+  row("tracked defect error max / rms, mm", [](const PredictorRun& r) {
+    return r.pose_samples > 0 ? num(r.defect_error_max * 1000, 1) + " / " + num(r.defect_error_rms * 1000, 1) : std::string("-");
   }, "-");
   row("frames / poses / dropped", [](const PredictorRun& r) {
     return std::to_string(r.vision.frames) + "/" + std::to_string(r.vision.poses) + "/" + std::to_string(r.vision.dropped);

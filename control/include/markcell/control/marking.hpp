@@ -136,6 +136,12 @@ struct PredictionSample {
   int defect = 0;
   Eigen::Vector3d estimated_CamR = Eigen::Vector3d::Zero();
   Eigen::Vector3d predicted_CamR = Eigen::Vector3d::Zero();
+  // The panel frame P this estimate is in: the capture time of the frame that set it up
+  // (where X_CamR_P was the identity) and the defect's centre in it, so that the rig can
+  // score the tracked motion apart from the inter-calibration.
+  Nanos reference_time = 0;
+  Eigen::Vector3d centre_P = Eigen::Vector3d::Zero();
+  int inliers = 0, count = 0;
 };
 
 // Control lane -> vision lane: start a new panel, and MF positions the tracker did not

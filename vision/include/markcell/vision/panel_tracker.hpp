@@ -62,6 +62,7 @@ struct TrackerParams {
   LkParams lk;
   int pyramid_levels = 3;
   int corner_radius = 5;            // Shi-Tomasi refinement window, half size
+  double corner_agree_px = 1.0;     // the right view's corner within this of LK's match
   double forward_backward_px = 0.5; // forward-backward consistency of frame-to-frame LK
   double epipolar_px = 1.0;         // max distance from the epipolar line
   double min_ncc = 0.75;            // template match score that counts as found
@@ -70,6 +71,7 @@ struct TrackerParams {
   double depth_min = 2.0, depth_max = 4.5;  // where a panel can be, metres from CamR
   int lost_frames_to_reinit = 15;   // frames without a pose before the MFs are searched anew
   int ransac_iterations = 64;
+  int reference_samples = 256;      // frames averaged into each MF's position in P
 };
 
 enum class TrackStatus : std::uint8_t {
@@ -93,6 +95,7 @@ struct PoseEstimate {
   TrackStatus status = TrackStatus::kSearching;
   std::string_view reason;          // why there is no pose (static text)
   std::uint32_t reference_serial = 0;  // changes whenever P is set up anew
+  Nanos reference_time = 0;            // capture time of the frame that set P up
   Eigen::Isometry3d X_CamR_P = Eigen::Isometry3d::Identity();
   int tracked = 0;                  // MFs seen in both views
   int inliers = 0;                  // MFs used for the pose
@@ -127,7 +130,7 @@ class PanelTracker {
   void reinitialise();
   void track();
   bool find_right(int mf, const Eigen::Vector2d& left, Eigen::Vector2d& right) const;
-  bool verify_pair(const Eigen::Vector2d& left, Eigen::Vector2d& right) const;
+  bool verify_pair(const Eigen::Vector2d& left, const Eigen::Vector2d& right) const;
   void fit_pose();
   void reacquire();
 
@@ -141,8 +144,14 @@ class PanelTracker {
   bool searching_ = true;
   int lost_frames_ = 0;
   PoseEstimate estimate_;
+  void refine_reference(const Eigen::Isometry3d& X_CamR_P);
+
   std::array<Eigen::Vector3d, kMaxMacroFeatures> reference_P_{};
   std::array<bool, kMaxMacroFeatures> known_{};
+  // Each MF's position in P as first known (the frame that set P up, or the record), and
+  // the running sum of where the fitted poses put its observations since.
+  std::array<Eigen::Vector3d, kMaxMacroFeatures> first_P_{}, sum_P_{};
+  std::array<int, kMaxMacroFeatures> samples_{};
   std::array<bool, kMaxMacroFeatures> tracked_{};  // has a left/right position from the previous frame
   std::array<Eigen::Vector2d, kMaxMacroFeatures> prev_left_{}, prev_right_{}, velocity_{};
   std::array<Patch, kMaxMacroFeatures> patch_{};   // left template per MF, taken at re-initialisation

@@ -106,6 +106,8 @@ class StereoRenderer {
   RenderSettings settings_;
   // Unit ray directions of every sample, per camera, in that camera's frame.
   std::vector<cv::Mat> rays_;  // CV_32FC3, h x (8 w)
+  // Normalised image coordinates of every pixel corner, per camera (edge pixels' samples).
+  std::vector<cv::Mat> corners_;  // CV_64FC2, (h + 1) x (w + 1)
 };
 
 // The pinhole-plus-Brown-Conrady model of one camera (k1 k2 p1 p2 k3), as OpenCV's.

@@ -49,8 +49,14 @@ struct PredictorRun {
   bool scored = false;                          // the recording has ground truth
   std::optional<Eigen::Vector3d> prediction_max_abs;  // at the sprays, CamR axes, m
   Eigen::Vector3d one_frame_max_abs = Eigen::Vector3d::Zero();  // estimated vs one-frame-ahead prediction, m
-  double pose_error_max = 0, pose_error_rms = 0;  // the marked defect's tracked position vs truth, m
-  int pose_samples = 0;
+  // Panel pose error: where the tracked motion since the frame that set P up puts the
+  // defect being marked vs where the true motion puts it, every frame of the approach, m;
+  // and its max over the frames with MFs missing (occluded or out of view).
+  double pose_error_max = 0, pose_error_rms = 0, pose_error_missing_max = 0;
+  int pose_samples = 0, pose_samples_missing = 0;
+  // The whole chain: the defect's position from the inspection record, through the
+  // inter-calibration and the tracked pose, vs truth, m.
+  double defect_error_max = 0, defect_error_rms = 0;
   double seconds_per_defect = 0;
   std::uint64_t deadline_misses = 0, overruns = 0;
   VisionStats vision;

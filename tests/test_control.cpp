@@ -160,6 +160,47 @@ TEST_CASE("Kalman predictor: constant speed with a turn, through noise, predicts
   CHECK((X * q - truth(10.5) * q).norm() < 0.003);
 }
 
+TEST_CASE("Kalman predictor: poses fitted to MFs on one line leave the rotation about it to the filter") {
+  // The panel moves along x at 15 cm/s without turning. Two seconds of poses fitted to ten
+  // MFs around the anchor, then two seconds fitted to four MFs on one vertical line 45 cm
+  // to the side (the rest out of view): their depth noise turns the pose about that line
+  // (here 10 mrad rms), which moves the anchor by 4.5 mm. With the MFs given, the filter
+  // keeps its own rotation; with the fixed noise it follows the measurement.
+  const Eigen::Vector3d anchor(0.0, 0.0, 3.1);
+  std::vector<Eigen::Vector3d> all, line;
+  for (int i = 0; i < 10; ++i) all.emplace_back(0.45 * std::cos(i * 0.628), 0.3 * std::sin(i * 0.628), 3.1);
+  for (int i = 0; i < 4; ++i) line.emplace_back(-0.45, -0.3 + 0.2 * i, 3.1);
+  auto truth = [](double t) { return pose(0, 0, 0, {0.15 * t, 0, 0}); };
+  auto run = [&](bool give_mfs) {
+    PosePredictor predictor(PredictorParams{});
+    predictor.reset(anchor);
+    std::mt19937 rng(4);
+    std::normal_distribution<double> turn(0, 0.01);
+    double worst = 0;
+    for (int k = 0; k <= 120; ++k) {
+      const double t = k / 30.0;
+      Eigen::Isometry3d m = truth(t);
+      const bool few = k > 60;
+      if (few) {  // turned about the vertical line through the four MFs (where they are now)
+        const Eigen::Vector3d pivot = m * Eigen::Vector3d(-0.45, 0, 3.1);
+        Eigen::Isometry3d spin = Eigen::Isometry3d::Identity();
+        spin.linear() = Eigen::AngleAxisd(turn(rng), Eigen::Vector3d::UnitY()).toRotationMatrix();
+        spin.translation() = pivot - spin.linear() * pivot;
+        m = spin * m;
+      }
+      const Nanos time = static_cast<Nanos>(std::llround(t * 1e9));
+      predictor.update(time, m, give_mfs ? std::span<const Eigen::Vector3d>(few ? line : all) : std::span<const Eigen::Vector3d>());
+      if (few) worst = std::max(worst, (predictor.predict(time + millis(100)) * anchor - truth(t + 0.1) * anchor).norm());
+    }
+    return worst;
+  };
+  const double with_mfs = run(true), fixed = run(false);
+  INFO("worst prediction error 0.1 s ahead at the anchor: " << with_mfs * 1000 << " mm with the MFs, " << fixed * 1000
+                                                             << " mm with the fixed noise");
+  CHECK(with_mfs < 0.001);
+  CHECK(fixed > 0.002);
+}
+
 // ---------------------------------------------------------------------------------
 // The planner: closed-form cases.
 

@@ -195,6 +195,8 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
     // with the record again; the tool poses live in P.
     intercalibrate_panel(e);
     if (state_ != MarkingState::kAcquire && state_ != MarkingState::kApproach && state_ != MarkingState::kSpraying) return;
+  } else {
+    refine_intercalibration(e);
   }
   if (defect_ >= 0) {
     PredictionSample& s = prediction_log_[prediction_count_ % kPredictionLog];
@@ -209,8 +211,13 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
     s.count = e.count;
     ++prediction_count_;
   }
-  // The fit's quality as the filter's measurement noise: the panel's MFs over those used.
-  predictor_.update(e.time, e.X_CamR_P, e.inliers > 0 ? static_cast<double>(e.count) / e.inliers : 1.0);
+  // The MFs the fit used set the filter's measurement noise (their layout: how well the
+  // pose is pinned down in each direction).
+  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> used{};
+  std::size_t n = 0;
+  for (int i = 0; i < e.count; ++i)
+    if (e.mfs[static_cast<std::size_t>(i)].inlier) used[n++] = e.reference_P[static_cast<std::size_t>(i)];
+  predictor_.update(e.time, e.X_CamR_P, std::span(used.data(), n));
   if (state_ == MarkingState::kAcquire && predictor_.ready()) next_defect(now);
   if (!planned_ && ++poses_since_intercal_ >= params_.plan_after_poses &&
       (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying))
@@ -263,18 +270,13 @@ void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
     fail_panel(e.time, to_string(ic.status), SkipReason::kIntercalibration);
     return;
   }
+  intercal_mfs_ = ic.inliers;
   // Tool poses in P, and the defects' order: downstream first.
-  std::array<Eigen::Vector3d, kMaxDefectPoints> pts{};
+  place_tools(ic);
   std::array<double, kMaxDefects> key{};
   for (int i = 0; i < job_.defect_count; ++i) {
-    const auto k = static_cast<std::size_t>(i);
-    const auto& d = job_.defects[k];
-    for (int j = 0; j < d.count; ++j) pts[static_cast<std::size_t>(j)] = ic.X_P_SL * d.points_SL[static_cast<std::size_t>(j)];
-    tools_[k] = tool_pose(std::span(pts.data(), static_cast<std::size_t>(d.count)), params_.standoff, Eigen::Vector3d::Zero(),
-                          params_.min_defect_points);
-    result_.defects[k].tool = tools_[k].status;
-    key[k] = tools_[k].centre.dot(params_.line_direction_CamR);
-    order_[k] = i;
+    key[static_cast<std::size_t>(i)] = tools_[static_cast<std::size_t>(i)].centre.dot(params_.line_direction_CamR);
+    order_[static_cast<std::size_t>(i)] = i;
   }
   std::sort(order_.begin(), order_.begin() + job_.defect_count,
             [&](int a, int b) { return key[static_cast<std::size_t>(a)] > key[static_cast<std::size_t>(b)]; });
@@ -295,6 +297,42 @@ void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
     if (e.reference_known[i]) anchor += e.reference_P[i], ++count;
   predictor_.reset(anchor / std::max(count, 1));
   if (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying) settled_since_ = -1;
+}
+
+void MarkingSequence::place_tools(const Intercalibration& ic) {
+  std::array<Eigen::Vector3d, kMaxDefectPoints> pts{};
+  for (int i = 0; i < job_.defect_count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    const auto& d = job_.defects[k];
+    for (int j = 0; j < d.count; ++j) pts[static_cast<std::size_t>(j)] = ic.X_P_SL * d.points_SL[static_cast<std::size_t>(j)];
+    tools_[k] = tool_pose(std::span(pts.data(), static_cast<std::size_t>(d.count)), params_.standoff, Eigen::Vector3d::Zero(),
+                          params_.min_defect_points);
+    result_.defects[k].tool = tools_[k].status;
+  }
+}
+
+void MarkingSequence::refine_intercalibration(const vision::PoseEstimate& e) {
+  // A panel that enters the view shows a few MFs on its leading edge when P is set up;
+  // fitted to those alone, the inter-calibration's rotation is levered out to the far
+  // defects (on a door, 5 mm of depth 60 cm away). The other MFs come into view, are
+  // tracked, and their positions in P settle; once more of them have been measured than
+  // the fit in use had, it is made again from those, and the tool poses with it (their
+  // order stays: the sequence is under way). At most once per MF, bounded.
+  constexpr int kMeasuredFrames = 10;  // frames an MF's position in P averages before it counts
+  const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
+  std::array<bool, vision::kMaxMacroFeatures> measured{};
+  int count = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    measured[i] = e.reference_known[i] && e.reference_observed[i] >= kMeasuredFrames;
+    count += measured[i] ? 1 : 0;
+  }
+  if (count <= intercal_mfs_) return;
+  const Intercalibration ic = intercalibrate(std::span(job_.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
+                                             std::span(measured.data(), n), params_.intercalibration);
+  intercal_mfs_ = count;  // tried with these; a failed refit keeps the fit in use
+  if (!ic.ok()) return;
+  result_.intercalibration = ic;
+  place_tools(ic);
 }
 
 void MarkingSequence::next_defect(Nanos now) {

@@ -33,7 +33,32 @@ Eigen::Isometry3d PosePredictor::compose(const Eigen::Vector3d& anchor_CamR, con
   return X;
 }
 
-void PosePredictor::update(Nanos time, const Eigen::Isometry3d& X, double noise_scale) {
+Eigen::Matrix<double, 6, 6> PosePredictor::measurement_noise(const Eigen::Isometry3d& X,
+                                                             std::span<const Eigen::Vector3d> mfs_P) const {
+  const double lat2 = params_.lateral_sigma * params_.lateral_sigma, dep2 = params_.depth_sigma * params_.depth_sigma;
+  Eigen::Matrix<double, 6, 6> noise = Eigen::Matrix<double, 6, 6>::Zero();
+  if (mfs_P.size() < 3) {
+    noise.diagonal() << lat2, lat2, dep2, Eigen::Vector3d::Constant(params_.rotation_sigma * params_.rotation_sigma);
+    return noise;
+  }
+  // The fit moves MF i by d_i = dp + dtheta x c_i, c_i its lever from the anchor in CamR:
+  // the information about (dp, dtheta) is the sum of J_i^T W J_i with J_i = [I, -[c_i]x]
+  // and W the MF's inverse noise; its inverse is the pose's covariance (Gauss-Markov).
+  const Eigen::Vector3d w(1 / lat2, 1 / lat2, 1 / dep2);
+  Eigen::Matrix<double, 6, 6> info = Eigen::Matrix<double, 6, 6>::Zero();
+  for (const Eigen::Vector3d& a : mfs_P) {
+    const Eigen::Vector3d c = X.linear() * (a - anchor_P_);
+    Eigen::Matrix<double, 3, 6> J;
+    J.leftCols<3>().setIdentity();
+    J.rightCols<3>() << 0, c.z(), -c.y(), -c.z(), 0, c.x(), c.y(), -c.x(), 0;  // -[c]x
+    info += J.transpose() * w.asDiagonal() * J;
+  }
+  // A rotation no MF layout pins down (all on one line) is left at a radian's uncertainty.
+  info.bottomRightCorner<3, 3>().diagonal().array() += 1.0;
+  return info.inverse();
+}
+
+void PosePredictor::update(Nanos time, const Eigen::Isometry3d& X, std::span<const Eigen::Vector3d> mfs_P) {
   if (count_ > 0 && time <= last_time_) return;
   const Eigen::Vector3d p = X * anchor_P_;
   if (count_ == 0) {
@@ -66,10 +91,7 @@ void PosePredictor::update(Nanos time, const Eigen::Isometry3d& X, double noise_
     Eigen::Matrix<double, 6, 12> H = Eigen::Matrix<double, 6, 12>::Zero();
     H.block<3, 3>(0, 0).setIdentity();
     H.block<3, 3>(3, 6).setIdentity();
-    Eigen::Matrix<double, 6, 6> Rm = Eigen::Matrix<double, 6, 6>::Zero();
-    const double lat2 = params_.lateral_sigma * params_.lateral_sigma, dep2 = params_.depth_sigma * params_.depth_sigma;
-    Rm.diagonal() << lat2, lat2, dep2, Eigen::Vector3d::Constant(params_.rotation_sigma * params_.rotation_sigma);
-    Rm *= noise_scale * noise_scale;
+    const Eigen::Matrix<double, 6, 6> Rm = measurement_noise(X, mfs_P);
     const Eigen::Matrix<double, 6, 6> S = H * P_ * H.transpose() + Rm;
     const Eigen::Matrix<double, 12, 6> K = P_ * H.transpose() * S.inverse();
     x_ += K * (z - H * x_);

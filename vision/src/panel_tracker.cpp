@@ -178,6 +178,7 @@ void PanelTracker::set_reference(int mf, const Eigen::Vector3d& p_P) {
   const auto k = static_cast<std::size_t>(mf);
   reference_P_[k] = first_P_[k] = sum_P_[k] = p_P;
   samples_[k] = 1;
+  observed_[k] = 0;
   known_[k] = true;
 }
 
@@ -195,6 +196,7 @@ const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const c
   estimate_.count = model_.count;
   estimate_.reference_P = reference_P_;
   estimate_.reference_known = known_;
+  estimate_.reference_observed = observed_;
   return estimate_;
 }
 
@@ -276,6 +278,8 @@ void PanelTracker::reinitialise() {
     const auto k = static_cast<std::size_t>(i);
     known_[k] = false;
     tracked_[k] = false;
+    observed_[k] = 0;
+    set_up_[k] = false;
     if (best_score <= 0) continue;
     const Eigen::Vector2d guess = model_.reference_px[k] + Eigen::Vector2d(best_dx * s, best_dy * s);
     double best = -1;
@@ -295,7 +299,8 @@ void PanelTracker::reinitialise() {
     o.right = r;
     o.p_CamR = rig_.triangulate_observed(p, r);
     reference_P_[k] = first_P_[k] = sum_P_[k] = o.p_CamR;
-    samples_[k] = 1;
+    samples_[k] = observed_[k] = 1;
+    set_up_[k] = true;
     known_[k] = tracked_[k] = true;
     prev_left_[k] = p;
     prev_right_[k] = r;
@@ -417,7 +422,9 @@ void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
   const Eigen::Isometry3d X_P_CamR = X_CamR_P.inverse();
   for (int i = 0; i < model_.count; ++i) {
     const auto k = static_cast<std::size_t>(i);
-    if (!estimate_.mfs[k].inlier || !known_[k] || samples_[k] >= params_.reference_samples) continue;
+    if (!estimate_.mfs[k].inlier || !known_[k]) continue;
+    observed_[k] = std::min(observed_[k] + 1, 1 << 30);
+    if (samples_[k] >= params_.reference_samples) continue;
     sum_P_[k] += X_P_CamR * estimate_.mfs[k].p_CamR;
     ++samples_[k];
   }
@@ -425,7 +432,7 @@ void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
   std::size_t n = 0;
   for (int i = 0; i < model_.count; ++i) {
     const auto k = static_cast<std::size_t>(i);
-    if (!known_[k]) continue;
+    if (!known_[k] || !set_up_[k]) continue;  // P is where the MFs found at set-up put it
     mean[n] = sum_P_[k] / samples_[k];
     first[n++] = first_P_[k];
   }

@@ -183,6 +183,8 @@ class MarkingSequence {
   void on_estimate(const vision::PoseEstimate& e, Nanos now);
   void start_panel(Nanos now);
   void intercalibrate_panel(const vision::PoseEstimate& e);
+  void refine_intercalibration(const vision::PoseEstimate& e);
+  void place_tools(const Intercalibration& ic);
   void next_defect(Nanos now);
   void approach(Nanos now, const TaskContext& ctx);
   void finish_panel(Nanos now);
@@ -226,6 +228,7 @@ class MarkingSequence {
   bool home_sent_ = false;
   Nanos home_sent_at_ = 0;
   int poses_since_intercal_ = 0;
+  int intercal_mfs_ = 0;                // MFs the inter-calibration in use was fitted to
   Nanos present_since_ = -1;  // panel present (cycle enabled) in idle without a record
   Nanos record_since_ = -1;   // a record waiting in idle without a panel
   bool fault_until_next_panel_ = false;  // an expired record's fault, held with no panel to release it

@@ -13,6 +13,7 @@
 //    any time, which is how the controller compensates camera, vision and arm latency.
 // Fixed-size matrices; no allocation.
 #include <cstdint>
+#include <span>
 #include <string_view>
 
 #include <Eigen/Geometry>
@@ -28,9 +29,11 @@ struct PredictorParams {
   PredictorKind kind = PredictorKind::kKalman;
   double accel_sigma = 0.005;       // m/s^2: the line's speed fluctuation
   double angular_accel_sigma = 0.002;  // rad/s^2: curved sections
-  double lateral_sigma = 0.0004;    // m: tracked position across the view
+  // Measurement noise. With the MFs a pose was fitted to, these are one MF's position
+  // noise and the pose's covariance follows from the MFs' layout; without, the pose's own.
+  double lateral_sigma = 0.0004;    // m: across the view
   double depth_sigma = 0.002;       // m: along the view (stereo depth)
-  double rotation_sigma = 0.003;    // rad
+  double rotation_sigma = 0.003;    // rad: the pose's, without MFs
 };
 
 class PosePredictor {
@@ -39,9 +42,11 @@ class PosePredictor {
   // A new panel frame P: forget everything; follow `anchor_P`.
   void reset(const Eigen::Vector3d& anchor_P);
   // A pose measured at `time` (the frame's capture time). Older or equal times are ignored.
-  // `noise_scale` multiplies the measurement's standard deviations (Kalman): a pose fitted
-  // to fewer of the panel's MFs is trusted less.
-  void update(Nanos time, const Eigen::Isometry3d& X_CamR_P, double noise_scale = 1.0);
+  // `mfs_P`: the MFs the pose was fitted to, in P (Kalman): the measurement's covariance is
+  // the rigid fit's, from their layout around the anchor. Few MFs, or MFs nearly on one
+  // line, leave the rotation about that line to the filter's own prediction instead of
+  // levering their depth noise out across the panel. Empty: the parameters' fixed noise.
+  void update(Nanos time, const Eigen::Isometry3d& X_CamR_P, std::span<const Eigen::Vector3d> mfs_P = {});
   // At least two measurements (two-frame) or one (Kalman) have arrived.
   bool ready() const;
   Eigen::Isometry3d predict(Nanos time) const;
@@ -52,6 +57,7 @@ class PosePredictor {
   using Vec12 = Eigen::Matrix<double, 12, 1>;
   using Mat12 = Eigen::Matrix<double, 12, 12>;
   Eigen::Isometry3d compose(const Eigen::Vector3d& anchor_CamR, const Eigen::Vector3d& rotvec) const;
+  Eigen::Matrix<double, 6, 6> measurement_noise(const Eigen::Isometry3d& X_CamR_P, std::span<const Eigen::Vector3d> mfs_P) const;
   PredictorParams params_;
   Eigen::Vector3d anchor_P_ = Eigen::Vector3d::Zero();
   int count_ = 0;

@@ -106,6 +106,9 @@ struct PoseEstimate {
   // needs the tracker itself.
   std::array<Eigen::Vector3d, kMaxMacroFeatures> reference_P{};
   std::array<bool, kMaxMacroFeatures> reference_known{};
+  // Frames each MF was seen in and used since P was set up (its position in P averages
+  // them); 0 for an MF only placed through the inspection record so far.
+  std::array<int, kMaxMacroFeatures> reference_observed{};
   int count = 0;                    // MFs of the panel type
   bool has_pose() const { return status == TrackStatus::kTracking || status == TrackStatus::kReinitialised; }
 };
@@ -152,6 +155,8 @@ class PanelTracker {
   // the running sum of where the fitted poses put its observations since.
   std::array<Eigen::Vector3d, kMaxMacroFeatures> first_P_{}, sum_P_{};
   std::array<int, kMaxMacroFeatures> samples_{};
+  std::array<int, kMaxMacroFeatures> observed_{};
+  std::array<bool, kMaxMacroFeatures> set_up_{};   // found when P was set up (not placed)
   std::array<bool, kMaxMacroFeatures> tracked_{};  // has a left/right position from the previous frame
   std::array<Eigen::Vector2d, kMaxMacroFeatures> prev_left_{}, prev_right_{}, velocity_{};
   std::array<Patch, kMaxMacroFeatures> patch_{};   // left template per MF, taken at re-initialisation

@@ -313,8 +313,8 @@ void MarkingSequence::place_tools(const Intercalibration& ic) {
 
 void MarkingSequence::refine_intercalibration(const vision::PoseEstimate& e) {
   // A panel that enters the view shows a few MFs on its leading edge when P is set up;
-  // fitted to those alone, the inter-calibration's rotation is levered out to the far
-  // defects (on a door, 5 mm of depth 60 cm away). The other MFs come into view, are
+  // fitted to those alone, the inter-calibration's rotation error is levered out to the
+  // defects beyond them. The other MFs come into view, are
   // tracked, and their positions in P settle; once more of them have been measured than
   // the fit in use had, it is made again from those, and the tool poses with it (their
   // order stays: the sequence is under way). At most once per MF, bounded.

@@ -154,6 +154,11 @@ PanelTracker::PanelTracker(const StereoRig& rig, const PanelTypeModel& model, co
     : rig_(rig),
       model_(model),
       params_(params),
+      level0_lk_([&] {
+        LkParams p = params.lk;
+        p.max_levels = 1;
+        return p;
+      }()),
       left_{Pyramid(rig.width(), rig.height(), std::max(params.pyramid_levels, kCoarseLevel + 1)),
             Pyramid(rig.width(), rig.height(), std::max(params.pyramid_levels, kCoarseLevel + 1))},
       right_(rig.width(), rig.height(), std::max(params.pyramid_levels, kCoarseLevel + 1)) {
@@ -341,15 +346,13 @@ void PanelTracker::track() {
     const LkResult fwd = track_point(prev, L, prev_left_[k], prev_left_[k] + velocity_[k], params_.lk);
     if (fwd.status != LkStatus::kOk) continue;
     // Backwards the answer is known to within the check's tolerance: level 0 suffices.
-    LkParams fine = params_.lk;
-    fine.max_levels = 1;
-    const LkResult back = track_point(L, prev, fwd.point, prev_left_[k], fine);
+    const LkResult back = track_point(L, prev, fwd.point, prev_left_[k], level0_lk_);
     if (back.status != LkStatus::kOk || (back.point - prev_left_[k]).norm() > params_.forward_backward_px) continue;
     Eigen::Vector2d left = fwd.point;
     if (!refine_corner(L, left, params_.corner_radius)) continue;
     // Left to right, seeded by the last disparity.
     // The disparity changes little between frames: level 0 first, the pyramid if that fails.
-    LkResult lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), fine);
+    LkResult lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), level0_lk_);
     if (lr.status != LkStatus::kOk) lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), params_.lk);
     if (lr.status != LkStatus::kOk) continue;
     Eigen::Vector2d right = lr.point;
@@ -417,8 +420,10 @@ void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
   // noise; when the arm hides part of the set, the pose rests on a few MFs and their
   // errors, levered out to a defect far from them, move it by several times as much. So
   // every inlier's observation, taken back into P by the pose, is averaged into its
-  // position (Procrustes over frames). The averaged set is then laid onto the first one
-  // by a rigid fit, so that P stays where it was set up: the tool poses live in it.
+  // position (Procrustes over frames). The averaged set is then laid by a rigid fit onto
+  // the MFs found when P was set up, so that P stays where it was: the tool poses live in
+  // it. (MFs placed through the record are left out of that fit: they carry the first
+  // inter-calibration's errors, levered out from the few MFs in view then.)
   const Eigen::Isometry3d X_P_CamR = X_CamR_P.inverse();
   for (int i = 0; i < model_.count; ++i) {
     const auto k = static_cast<std::size_t>(i);
@@ -459,9 +464,8 @@ void PanelTracker::reacquire() {
     if (ncc(patch_[k], L, 0, static_cast<int>(std::lround(left.x())), static_cast<int>(std::lround(left.y()))) < params_.min_ncc)
       continue;
     if (!refine_corner(L, left, params_.corner_radius)) continue;
-    LkParams fine = params_.lk;
-    fine.max_levels = 1;  // the pose's projection is within a pixel or two
-    const LkResult lr = track_point(L, right_, left, right + (left - rig_.project(Camera::kLeft, p)), fine);
+    // The pose's projection is within a pixel or two: level 0 suffices.
+    const LkResult lr = track_point(L, right_, left, right + (left - rig_.project(Camera::kLeft, p)), level0_lk_);
     if (lr.status != LkStatus::kOk) continue;
     right = lr.point;
     if (!verify_pair(left, right)) continue;

@@ -140,6 +140,7 @@ class PanelTracker {
   const StereoRig& rig_;
   const PanelTypeModel model_;
   const TrackerParams params_;
+  const LkParams level0_lk_;  // params_.lk on level 0 only: for a guess known to a pixel or two
   Pyramid left_[2];
   Pyramid right_;
   int cur_ = 0;

@@ -47,6 +47,16 @@ double json_number(const std::string& json, const std::string& section, const st
 }
 
 
+// `markcell replay RECORDING --one-predictor -q ARGS --out OUT`, which must succeed; its
+// report.json.
+std::string replay_report(const std::string& recording, const std::string& args, const std::string& out) {
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + recording + " --one-predictor -q" + args +
+                             " --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  return read_file(out + "/report.json");
+}
+
 // One short scenario for the whole file: 3 s of the paper's door at 10 frames a second,
 // generated once per build of markcell (CTest runs each case in its own process: they
 // share it under a file lock, and a newer markcell regenerates it).
@@ -151,12 +161,9 @@ TEST_CASE("markcell sim paper-door: all three dings marked within the radius, no
 TEST_CASE("replaying the same recording gives the same command log and report, byte for byte") {
   test::TempDir dir;
   const std::string out = (dir.path() / "again").string();
-  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + sim_dir() +
-                             "/recording --one-predictor -q --out " + out);
-  INFO(r.output);
-  REQUIRE(r.exit_code == 0);
+  const std::string json = replay_report(sim_dir() + "/recording", "", out);
   CHECK(read_file(out + "/commands.log") == read_file(sim_dir() + "/commands.log"));
-  CHECK(read_file(out + "/report.json") == read_file(sim_dir() + "/report.json"));
+  CHECK(json == read_file(sim_dir() + "/report.json"));
 }
 
 TEST_CASE("inspection records: every bad field is rejected with its file, line and what is wrong") {
@@ -240,11 +247,7 @@ TEST_CASE("a record that does not match the panel: inter-calibration rejected, n
   }
   std::ofstream((rec / "inspection.yaml").string()) << text;
   const std::string out = (dir.path() / "out").string();
-  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
-                             " --one-predictor -q --out " + out);
-  INFO(r.output);
-  REQUIRE(r.exit_code == 0);
-  const std::string json = read_file(out + "/report.json");
+  const std::string json = replay_report(rec.string(), "", out);
   INFO(json);
   CHECK(json.find("\"status\": \"macro-features of the record and of the panel disagree\"") != std::string::npos);
   CHECK(json.find("\"fault\": true") != std::string::npos);
@@ -347,11 +350,7 @@ TEST_CASE("defects the arm cannot reach are planned out at once, reported with t
   text.replace(at, 12, "reach_m: 0.9");  // the dings' spraying poses are 1.1 to 1.3 m from the base
   std::ofstream(cfg.string()) << text;
   const std::string out = (dir.path() / "out").string();
-  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + sim_dir() + "/recording --config " +
-                             cfg.string() + " --one-predictor -q --out " + out);
-  INFO(r.output);
-  REQUIRE(r.exit_code == 0);
-  const std::string json = read_file(out + "/report.json");
+  const std::string json = replay_report(sim_dir() + "/recording", " --config " + cfg.string(), out);
   INFO(json);
   CHECK(json_number(json, "plan", "feasible") == 0);
   CHECK(json_number(json, "plan", "infeasible") == 3);
@@ -722,11 +721,7 @@ TEST_CASE("replay with a scripted PLC: an e-stop mid-panel ends it, nothing spra
   test::TempDir dir;
   const std::string script = dir.write("estop.txt", "# the operator hits the e-stop as the arm approaches\n0.8 plc_estop 1\n");
   const std::string out = (dir.path() / "estop").string();
-  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + sim_dir() +
-                             "/recording --one-predictor -q --plc-script " + script + " --out " + out);
-  INFO(r.output);
-  REQUIRE(r.exit_code == 0);
-  const std::string json = read_file(out + "/report.json");
+  const std::string json = replay_report(sim_dir() + "/recording", " --plc-script " + script, out);
   INFO(json);
   // The first ding is sprayed at 0.70 s, before the stop; the other two never are.
   CHECK(json_number(json, "defects", "sprayed") == 1);

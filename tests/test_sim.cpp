@@ -30,22 +30,13 @@
 #include "test_files.hpp"
 
 using namespace markcell;
+using markcell::test::json_number;
 using markcell::test::read_file;
 using markcell::test::run_command;
 using markcell::test::source_path;
 
 namespace {
 const std::string kMarkcell = MARKCELL_BINARY;
-
-// A number after "key": in the first occurrence of `section` (simple, for our own JSON).
-double json_number(const std::string& json, const std::string& section, const std::string& key) {
-  const auto s = json.find("\"" + section + "\"");
-  REQUIRE(s != std::string::npos);
-  const auto k = json.find("\"" + key + "\": ", s);
-  REQUIRE(k != std::string::npos);
-  return std::stod(json.substr(k + key.size() + 4));
-}
-
 
 // `markcell replay RECORDING --one-predictor -q ARGS --out OUT`, which must succeed; its
 // report.json.
@@ -164,6 +155,28 @@ TEST_CASE("replaying the same recording gives the same command log and report, b
   const std::string json = replay_report(sim_dir() + "/recording", "", out);
   CHECK(read_file(out + "/commands.log") == read_file(sim_dir() + "/commands.log"));
   CHECK(json == read_file(sim_dir() + "/report.json"));
+}
+
+TEST_CASE("a replay on real devices (--gpio-sim) refuses a configuration of simulated ones, naming the file and key") {
+  // The real-device replay itself runs in the guest kernel (test_realkernel, [replay]).
+  test::TempDir dir;
+  const std::string example = source_path("config/cell.example.yaml");
+  const auto gpio = run_command(kMarkcell + " replay " + sim_dir() + "/recording -q --one-predictor --config " + example +
+                                " --gpio-sim " + dir.path().string() + " --out " + (dir.path() / "a").string());
+  INFO(gpio.output);
+  CHECK(gpio.exit_code != 0);
+  CHECK(gpio.output.find(example + ": devices.gpio.simulated is true") != std::string::npos);
+  std::string text = read_file(example);
+  text.replace(text.find("    simulated: true "), 19, "    simulated: false");
+  for (const std::string file : {"calibration/marking_stereo.yaml", "calibration/base.yaml", "panels/door.yaml", "panels/fender.yaml"})
+    text.replace(text.find(" " + file), file.size() + 1, " " + source_path("config/" + file));
+  const std::string real_gpio = dir.write("cell.yaml", text);
+  const auto arm = run_command(kMarkcell + " replay " + sim_dir() + "/recording -q --one-predictor --config " + real_gpio +
+                               " --gpio-sim " + dir.path().string() + " --out " + (dir.path() / "b").string());
+  INFO(arm.output);
+  CHECK(arm.exit_code != 0);
+  CHECK(arm.output.find(real_gpio + ": devices.arm.transport must be can") != std::string::npos);
+  CHECK_FALSE(std::filesystem::exists(dir.path() / "a" / "report.json"));
 }
 
 TEST_CASE("inspection records: every bad field is rejected with its file, line and what is wrong") {

@@ -82,7 +82,7 @@ control::TaskResult Cell::SimWorld::task(control::TaskContext& ctx, void* self) 
     w->sprays[w->spray_count % w->sprays.size()] = SimSpray{ctx.now(), w->arm->model().tool()};
     ++w->spray_count;
   }
-  if (open != w->valve_was_open && w->log.capacity() > 0) w->record({ctx.now(), static_cast<std::int8_t>(open ? 1 : 0), {}});
+  if (open != w->valve_was_open) w->log.valve(ctx.now(), open);
   w->valve_was_open = open;
   return control::TaskResult::kOk;
 }
@@ -322,7 +322,7 @@ void Cell::enable_command_log(std::size_t capacity) {
   sim_world_->log.reserve(capacity);
   sim_world_->wire.set_tap(
       [](void* user, const drivers::CanFrame& frame, Nanos time) {
-        static_cast<SimWorld*>(user)->record({time, -1, frame});
+        static_cast<SimWorld*>(user)->log.frame(time, frame);
       },
       sim_world_.get());
 }
@@ -341,27 +341,7 @@ void Cell::use_frame_source(std::unique_ptr<vision::FrameSource> source) {
   vision_->source = frame_source_.get();
 }
 
-std::string Cell::command_log_text() const {
-  std::string out;
-  if (!sim_world_) return out;
-  char line[200];
-  for (const auto& e : sim_world_->log) {
-    const long long s = e.time / kNanosPerSecond, ns = e.time % kNanosPerSecond;
-    if (e.valve >= 0) {
-      std::snprintf(line, sizeof line, "(%lld.%09lld) valve %s\n", s, ns, e.valve != 0 ? "open" : "close");
-      out += line;
-      continue;
-    }
-    int n = std::snprintf(line, sizeof line, "(%lld.%09lld) can %03X#%s", s, ns, static_cast<unsigned>(e.frame.id),
-                          e.frame.fd ? "#0" : "");
-    for (std::size_t i = 0; i < e.frame.len && n < 190; ++i)
-      n += std::snprintf(line + n, sizeof line - static_cast<std::size_t>(n), "%02X", e.frame.data[i]);
-    out += line;
-    out += '\n';
-  }
-  if (sim_world_->log_dropped > 0) out += "# " + std::to_string(sim_world_->log_dropped) + " entries not kept: the log was full\n";
-  return out;
-}
+std::string Cell::command_log_text() const { return sim_world_ ? sim_world_->log.text() : std::string(); }
 
 Cell::~Cell() {
   if (started_ && !shut_down_) shutdown(control::FaultCode::kShutdown, "cell", "destroyed without shutdown");

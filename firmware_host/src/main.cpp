@@ -535,7 +535,7 @@ int main(int argc, char** argv) {
   std::uint64_t sim_seed = 1;
   double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
   bool one_predictor = false, quiet = false, no_arm = false;
-  std::string rig_plc_script;
+  std::string rig_plc_script, rig_gpio_sim;
   auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
   sim->add_option("SCENARIO", sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
       ->required();
@@ -545,6 +545,10 @@ int main(int argc, char** argv) {
   sim->add_option("--scanner", scanner_file, "Inspection scanner calibration (default: calibration/inspection_stereo.yaml next to the config)");
   auto* replay = app.add_subcommand("replay", "Replay a recording through the cell in simulated time; score it when it has ground truth");
   replay->add_option("RECORDING", replay_recording, "Recording folder (vision/RECORDING.md)")->required()->check(CLI::ExistingDirectory);
+  replay->add_option("--gpio-sim", rig_gpio_sim,
+                     "Replay in real time on the configured real devices (libgpiod chip, CAN arm link): the rig's PLC and valve "
+                     "through this gpio-sim chip's sysfs folder, its simulated arm a node on the CAN interface")
+      ->check(CLI::ExistingDirectory);
   for (auto* c : {sim, replay}) {
     c->add_option("--config,-c", rig_config, "Cell configuration (YAML)");
     c->add_option("--out,-o", rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
@@ -624,6 +628,7 @@ int main(int argc, char** argv) {
       options.progress = !quiet;
       options.both_predictors = !one_predictor;
       options.draw_arm = !no_arm;
+      options.gpio_sim = rig_gpio_sim;
       if (!rig_plc_script.empty()) {
         try {
           options.plc_events = load_plc_script(rig_plc_script);

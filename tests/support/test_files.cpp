@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <catch2/catch.hpp>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -51,6 +52,14 @@ CommandResult run_command(const std::string& command) {
   const int status = pclose(pipe);
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
+}
+
+double json_number(const std::string& json, const std::string& section, const std::string& key) {
+  const auto s = json.find("\"" + section + "\"");
+  REQUIRE(s != std::string::npos);
+  const auto k = json.find("\"" + key + "\": ", s);
+  REQUIRE(k != std::string::npos);
+  return std::stod(json.substr(k + key.size() + 4));
 }
 
 }  // namespace markcell::test

@@ -27,4 +27,8 @@ struct CommandResult {
 };
 CommandResult run_command(const std::string& command);
 
+// The number after "KEY": in a JSON text, the first one after "SECTION" (the rig's
+// report.json); a test failure when either is missing.
+double json_number(const std::string& json, const std::string& section, const std::string& key);
+
 }  // namespace markcell::test

@@ -7,12 +7,15 @@
 #include <cstdio>
 #include <filesystem>
 #include <stdexcept>
+#include <thread>
 
 #include "markcell/control/tool_pose.hpp"
+#include "markcell/drivers/gpiod_lines.hpp"
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
 #include "markcell/vision/render.hpp"
+#include "markcell/host/rig/hil_peer.hpp"
 
 namespace markcell::host::rig {
 
@@ -47,32 +50,72 @@ bool has_task(const CellConfig& c, const std::string& name) {
   return std::any_of(c.executive.tasks.begin(), c.executive.tasks.end(), [&](const auto& t) { return t.name == name; });
 }
 
+// A real-device replay's checks: the configuration must name real devices for the peer to
+// stand behind.
+void check_real_devices(const CellConfig& c) {
+  if (c.gpio.simulated)
+    throw std::runtime_error(c.file + ": devices.gpio.simulated is true: a replay on real devices (--gpio-sim) needs the "
+                                      "libgpiod chip the gpio-sim lines are on");
+  if (c.arm.transport != ArmTransport::kCan)
+    throw std::runtime_error(c.file + ": devices.arm.transport must be can for a replay on real devices (--gpio-sim): the "
+                                      "rig's simulated arm is a node on the CAN interface");
+}
+
 PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
                       const std::string& predictor, const ReplayOptions& options, const vision::Recording& rec) {
+  const bool real = !options.gpio_sim.empty();
   CellConfig cfg = base;
   cfg.cameras.source = CameraSource::kRecording;
   cfg.cameras.recording = recording;
   cfg.marking.predictor = predictor;
   cfg.watchdog.systemd = false;  // no service manager in a rig run
   cfg.watchdog.device = false;
-  cfg.gpio.simulated = true;
-  cfg.arm.transport = cfg.arm.transport == ArmTransport::kSimulated ? cfg.arm.transport : ArmTransport::kSimulated;
-  cfg.executive.lock_memory = false;
-  for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;  // simulated time needs no privileges
+  if (real) {
+    check_real_devices(cfg);
+  } else {
+    cfg.gpio.simulated = true;
+    cfg.arm.transport = ArmTransport::kSimulated;
+    cfg.executive.lock_memory = false;
+    for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;  // simulated time needs no privileges
+  }
 
-  Cell cell(cfg, ClockKind::kSimulated);
-  cell.enable_command_log(std::size_t{1} << 18);
-  if (options.draw_arm && !rec.truth().empty()) cell.draw_sim_arm_in_frames();
+  Cell cell(cfg, real ? ClockKind::kReal : ClockKind::kSimulated);
+  std::unique_ptr<HilPeer> peer;
+  if (real) {
+    auto* lines = dynamic_cast<drivers::GpiodLines*>(&cell.gpio());
+    if (lines == nullptr) throw std::logic_error("a real-device replay without the libgpiod driver");
+    std::array<unsigned, kLineRoleCount> offsets{};
+    for (std::size_t i = 0; i < kLineRoleCount; ++i) offsets[i] = lines->offset(static_cast<int>(i));
+    int priority = 0;  // the world runs above every lane of the cell, when they have priorities
+    for (const auto& lane : cfg.executive.lanes) priority = std::max(priority, lane.priority > 0 ? std::min(lane.priority + 1, 99) : 0);
+    peer = std::make_unique<HilPeer>(cfg, options.gpio_sim, offsets, priority);
+    peer->start();
+  } else {
+    cell.enable_command_log(std::size_t{1} << 18);
+    if (options.draw_arm && !rec.truth().empty()) cell.draw_sim_arm_in_frames();
+  }
+  const auto drive = [&](LineRole line, bool level) {
+    if (peer) peer->drive(line, level);
+    else cell.drive_sim_input(line, level);
+  };
+  control::SimClock* clock = cell.sim_clock();
+  const auto now = [&] { return clock != nullptr ? clock->global_now() : cell.clock().now(0); };
+  const Nanos start = now();  // the PLC script's and the command log's zero (0 in simulated time)
   cell.start();
-  cell.drive_sim_input(LineRole::kPlcPanelPresent, true);
+  drive(LineRole::kPlcPanelPresent, true);
   control::MarkingSequence& marking = *cell.marking();
   marking.offer_job(job);
   auto& source = static_cast<vision::RecordingFrameSource&>(*cell.frame_source());
-  control::SimClock& clock = *cell.sim_clock();
   const Nanos end = source.end_time();
   const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
   auto progress = [&](Nanos t) {
     if (!options.progress) return;
+    if (real) {  // the lanes are running: only what is safe to read from here
+      std::fprintf(stderr, "%s[%s] t=%5.1f/%.1f s  real time, real devices  panels done %llu%s", tty ? "\r" : "",
+                   predictor.c_str(), to_seconds(t - start), to_seconds(end - start),
+                   static_cast<unsigned long long>(marking.panels_completed()), tty ? "   " : "\n");
+      return;
+    }
     const auto& p = marking.current();
     int sprayed = 0;
     for (int i = 0; i < p.defect_count; ++i) sprayed += p.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
@@ -82,36 +125,41 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   };
   PlcScript script(options.plc_events);
   const auto run_until = [&](Nanos t) {
-    if (clock.run_until(t) == control::SimClock::RunResult::kWedged)
-      throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock.global_now())) + " s");
+    if (clock == nullptr) {  // real time: the lanes run on their own, the PLC is polled here
+      for (Nanos n = now(); n < t; n = now()) std::this_thread::sleep_for(std::chrono::nanoseconds(std::min<Nanos>(t - n, millis(5))));
+      return;
+    }
+    if (clock->run_until(t) == control::SimClock::RunResult::kWedged)
+      throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock->global_now())) + " s");
   };
-  // Simulated time runs to `t`, stopping at each scripted PLC event on the way (the
-  // simulated clock starts at 0: script times are from the start).
-  const auto drive = [&](const PlcEvent& ev) { cell.drive_sim_input(ev.line, ev.level); };
+  // Time runs to `t`, stopping at each scripted PLC event on the way (script times are
+  // from the start).
+  const auto apply = [&](const PlcEvent& ev) { drive(ev.line, ev.level); };
   auto run_to = [&](Nanos t) {
     for (;;) {
-      const Nanos now = clock.global_now();
-      const Nanos wait = script.until_next(now, t - now + 1);  // past t when none is left
-      if (now + wait > t) break;
-      run_until(now + std::max<Nanos>(wait, 1));
-      script.apply_due(clock.global_now(), drive);
+      const Nanos n = now();
+      const Nanos wait = script.until_next(n - start, t - n + 1);  // past t when none is left
+      if (n + wait > t) break;
+      run_until(n + std::max<Nanos>(wait, 1));
+      script.apply_due(now() - start, apply);
     }
     run_until(t);
   };
-  script.apply_due(0, drive);
-  for (Nanos t = seconds(1); marking.panels_completed() == 0; t += seconds(1)) {
+  script.apply_due(0, apply);
+  for (Nanos t = start + seconds(1); marking.panels_completed() == 0; t += seconds(1)) {
     run_to(std::min(t, end));
-    progress(clock.global_now());
+    progress(now());
     if (t >= end) break;
   }
   // The panel leaves the station with the recording's end.
-  cell.drive_sim_input(LineRole::kPlcPanelPresent, false);
+  drive(LineRole::kPlcPanelPresent, false);
   for (Nanos t = end + seconds(1); marking.panels_completed() == 0 && t <= end + options.tail; t += seconds(1)) {
     run_to(t);
     progress(t);
   }
   if (options.progress && tty) std::fprintf(stderr, "\n");
   cell.shutdown(control::FaultCode::kShutdown, "rig", "replay finished");
+  if (peer) peer->stop();
 
   PredictorRun run;
   run.predictor = predictor;
@@ -119,7 +167,12 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   run.vision = *cell.vision_stats();
   run.frames_skipped = source.skipped();
   run.timing_report = cell.executive().timing_report();
-  run.command_log = cell.command_log_text();
+  run.command_log = peer ? peer->command_log_text(start) : cell.command_log_text();
+  if (peer) {
+    run.peer_late_ticks = peer->late_ticks();
+    if (!peer->error().empty()) run.faults.push_back("rig peer: " + peer->error());
+    if (peer->priority_refused()) run.faults.push_back("rig peer: SCHED_FIFO refused, its thread ran at normal priority");
+  }
   for (std::size_t i = 0; i < cell.executive().spec().tasks.size(); ++i) {
     run.deadline_misses += cell.executive().task_stats(static_cast<int>(i)).deadline_misses.load();
     run.overruns += cell.executive().task_stats(static_cast<int>(i)).overruns.load();
@@ -155,8 +208,11 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   };
   std::vector<Spray> sprays;
   const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
-  for (std::size_t i = cell.sim_spray_total() - cell.sim_spray_count(); i < cell.sim_spray_total(); ++i)
-    sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_spray(i).tool)});
+  if (peer)
+    for (const SimSpray& s : peer->sprays()) sprays.push_back({s.time, X_CamR_Base * control::to_isometry(s.tool)});
+  else
+    for (std::size_t i = cell.sim_spray_total() - cell.sim_spray_count(); i < cell.sim_spray_total(); ++i)
+      sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_spray(i).tool)});
   std::vector<SkippedDefect> skipped;
   for (int i = 0; i < run.panel.defect_count; ++i) {
     const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
@@ -216,6 +272,11 @@ ReplayReport replay_recording(const CellConfig& config, const std::string& recor
   report.scenario = rec.manifest().scenario.empty() ? std::filesystem::path(recording).filename().string() : rec.manifest().scenario;
   report.recording = recording;
   report.panel_type = rec.manifest().panel_type;
+  if (!options.gpio_sim.empty()) {
+    check_real_devices(config);
+    report.devices = "real: gpio chip " + config.gpio.chip + ", CAN " + config.arm.can.interface + "; rig peer through gpio-sim " +
+                     options.gpio_sim;
+  }
   std::vector<std::string> kinds{config.marking.predictor};
   if (options.both_predictors) kinds.push_back(config.marking.predictor == "kalman" ? "two-frame" : "kalman");
   for (const auto& k : kinds) report.runs.push_back(run_once(config, recording, job, k, options, rec));

@@ -127,6 +127,7 @@ std::string run_json(const PredictorRun& r, const std::string& ind) {
     << ", \"poses\": " << r.vision.poses << ", \"skipped\": " << r.frames_skipped
     << ", \"arm_drawn\": " << r.vision.arm_drawn << ", \"arm_hid_pairs\": " << r.vision.arm_hid_pairs
     << ", \"arm_hidden_mfs\": " << r.vision.arm_hidden_mfs << "},\n";
+  o << ind << "\"peer_late_ticks\": " << r.peer_late_ticks << ",\n";
   o << ind << "\"sprays\": [";
   for (std::size_t i = 0; i < r.score.sprays.size(); ++i) {
     const auto& s = r.score.sprays[i];
@@ -320,7 +321,7 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
   const std::string json = (dir / "report.json").string();
   std::ofstream out(json);
   out << "{\n  \"scenario\": " << quote(report.scenario) << ",\n  \"recording\": " << quote(report.recording)
-      << ",\n  \"panel_type\": " << quote(report.panel_type) << ",\n";
+      << ",\n  \"panel_type\": " << quote(report.panel_type) << ",\n  \"devices\": " << quote(report.devices) << ",\n";
   out << run_json(main, "  ") << ",\n";
   out << "  \"predictors\": {";
   for (std::size_t i = 0; i < report.runs.size(); ++i) {
@@ -346,7 +347,8 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
 std::string report_table(const ReplayReport& report, const std::vector<std::string>& files) {
   std::ostringstream o;
   char line[256];
-  o << "marking (" << report.scenario << ", " << report.panel_type << "):\n";
+  o << "marking (" << report.scenario << ", " << report.panel_type << (report.devices == "simulated" ? "" : "; devices " + report.devices)
+    << "):\n";
   std::snprintf(line, sizeof line, "  %-38s", "");
   o << line;
   for (const auto& r : report.runs) {
@@ -410,7 +412,8 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
       if (d.skipped != control::SkipReason::kNone)
         o << "  [" << r.predictor << "] defect " << d.id << " skipped: " << control::to_string(d.skipped) << "\n";
     }
-  o << "\ntiming (" << report.runs.front().predictor << " run, simulated clock):\n" << report.runs.front().timing_report;
+  o << "\ntiming (" << report.runs.front().predictor << " run, " << (report.devices == "simulated" ? "simulated" : "real")
+    << " clock):\n" << report.runs.front().timing_report;
   o << "\nwrote:\n";
   for (const auto& f : files) o << "  " << f << "\n";
   return o.str();

@@ -17,6 +17,7 @@
 #include "markcell/drivers/serial_arm_link.hpp"
 #include "markcell/drivers/gpio.hpp"
 #include "markcell/drivers/watchdog_device.hpp"
+#include "markcell/host/command_log.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/sd_notify.hpp"
 #include "markcell/vision/frame_source.hpp"
@@ -139,17 +140,7 @@ class Cell {
     bool valve_was_open = false;
     std::array<SimSpray, 256> sprays{};
     std::size_t spray_count = 0;
-    struct LogEntry {
-      Nanos time = 0;
-      std::int8_t valve = -1;  // -1: a CAN frame; 0 closed, 1 opened
-      drivers::CanFrame frame;
-    };
-    std::vector<LogEntry> log;  // capacity reserved once; never grows past it
-    std::uint64_t log_dropped = 0;
-    void record(const LogEntry& e) {
-      if (log.size() < log.capacity()) log.push_back(e);
-      else ++log_dropped;
-    }
+    CommandLog log;  // capacity reserved once, by enable_command_log
     static control::TaskResult task(control::TaskContext& ctx, void* self);
   };
   struct VisionTask {

@@ -5,6 +5,10 @@
 //
 //   markcell replay RECORDING --out DIR    an existing recording
 //   markcell sim SCENARIO --out DIR        a scenario generated into DIR/recording, then replayed
+//   markcell replay RECORDING --gpio-sim DIR --out DIR
+//                                          in real time on the configured real devices (a
+//                                          libgpiod chip, the CAN arm link), the rig's
+//                                          world behind them (rig/hil_peer.hpp); scored alike
 //
 // Each run replays the recording once per predictor (the configured one first, then the
 // other), so both are reported from the same frames.
@@ -35,6 +39,10 @@ struct ReplayOptions {
   // The PLC's inputs scripted on top of the panel-present line the replay drives itself
   // (markcell/host/plc_script.hpp): an e-stop, a cycle disable, a panel leaving early.
   std::vector<PlcEvent> plc_events;
+  // Real devices, real time: the gpio-sim chip's sysfs folder the rig's peer drives the
+  // PLC's inputs and reads the valve through (/sys/devices/platform/gpio-sim.N/gpiochipM).
+  // Empty: simulated devices in simulated time. The arm is not drawn into the frames.
+  std::string gpio_sim;
 };
 
 struct TimedPoint {
@@ -61,6 +69,7 @@ struct PredictorRun {
   std::uint64_t deadline_misses = 0, overruns = 0;
   VisionStats vision;
   std::uint64_t frames_skipped = 0;
+  std::uint64_t peer_late_ticks = 0;            // real devices: the rig peer's ticks begun a period late
   std::string timing_report;
   std::vector<std::string> faults;
   std::vector<control::PredictionSample> samples;
@@ -72,6 +81,7 @@ struct ReplayReport {
   std::string scenario;
   std::string recording;
   std::string panel_type;
+  std::string devices = "simulated";            // what the cell ran on, and its clock with it
   std::vector<PredictorRun> runs;               // runs[0]: the configured predictor
 };
 

@@ -226,6 +226,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     if (const auto c = true_centre(d.id, d.spray_requested)) {
       const Eigen::Vector3d e = (d.predicted_centre_CamR - *c).cwiseAbs();
       run.prediction_max_abs = run.prediction_max_abs ? run.prediction_max_abs->cwiseMax(e) : e;
+      run.prediction_per_defect.push_back({d.id, e});
     }
   }
   double sq_pose = 0, sq_defect = 0;

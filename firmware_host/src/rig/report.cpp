@@ -106,7 +106,10 @@ std::string run_json(const PredictorRun& r, const std::string& ind) {
     << ", \"rms\": " << (r.scored && r.score.marked > 0 ? num(r.score.error_rms * 1000) : "null") << "},\n";
   o << ind << "\"prediction_error_mm\": {\"max_abs\": "
     << (r.prediction_max_abs ? vec(*r.prediction_max_abs, 1000) : std::string("null"))
-    << ", \"one_frame_ahead_max_abs\": " << vec(r.one_frame_max_abs, 1000) << "},\n";
+    << ", \"one_frame_ahead_max_abs\": " << vec(r.one_frame_max_abs, 1000) << ", \"per_defect\": [";
+  for (std::size_t i = 0; i < r.prediction_per_defect.size(); ++i)
+    o << (i ? ", " : "") << "{\"id\": " << r.prediction_per_defect[i].id << ", \"abs\": " << vec(r.prediction_per_defect[i].abs, 1000) << "}";
+  o << "]},\n";
   const auto& ic = r.panel.intercalibration;
   const bool has_ic = ic.inliers > 0;
   o << ind << "\"intercalibration_cm\": {\"max_abs\": " << (has_ic ? vec(ic.max_abs, 100) : "null")

@@ -56,6 +56,11 @@ struct PredictorRun {
   control::PanelResult panel;
   bool scored = false;                          // the recording has ground truth
   std::optional<Eigen::Vector3d> prediction_max_abs;  // at the sprays, CamR axes, m
+  struct DefectPrediction {
+    int id = 0;
+    Eigen::Vector3d abs = Eigen::Vector3d::Zero();  // |predicted - true| centre at its spray, CamR, m
+  };
+  std::vector<DefectPrediction> prediction_per_defect;
   Eigen::Vector3d one_frame_max_abs = Eigen::Vector3d::Zero();  // estimated vs one-frame-ahead prediction, m
   // Panel pose error: where the tracked motion since the frame that set P up puts the
   // defect being marked vs where the true motion puts it, every frame of the approach, m;

@@ -1,11 +1,13 @@
 // The marking side of control against closed-form answers: the inter-calibration and
 // its Table I metrics, the tool pose on known planes, and both predictors on known
 // motions, without allocating.
+#include <algorithm>
 #include <catch2/catch.hpp>
 #include <cmath>
 #include <random>
 #include <vector>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
 #include "alloc_guard.hpp"
@@ -68,6 +70,66 @@ TEST_CASE("inter-calibration: recovers X_P_SL, reports Table I metrics per axis,
   CHECK(intercalibrate(sl, p, std::span(known, 10), limits).status == IntercalibrationStatus::kAboveLimit);
   bool few[10] = {true, true, true, false, false, false, false, false, false, false};
   CHECK(intercalibrate(sl, p, std::span(few, 10), limits).status == IntercalibrationStatus::kTooFewPoints);
+}
+
+TEST_CASE("inter-calibration: a defect's placement uncertainty from the MFs' layout matches the scatter of repeated fits") {
+  // Five MFs in a 12 cm band (a panel entering the view) and a defect 0.6 m beyond them:
+  // the fit's rotation error is levered out to the defect. 400 fits with fresh 1 mm noise
+  // on the marking side give the defect's placement scatter (the reference); each fit's
+  // own placement_sigma must agree with it, and with ten MFs spread over the panel the
+  // same defect is placed several times more surely.
+  const Eigen::Isometry3d X_P_SL = pose(0.05, -0.2, 0.1, {0.3, -0.1, 0.4});
+  const double sigma = 0.001;
+  std::mt19937 rng(11);
+  std::normal_distribution<double> noise(0.0, sigma);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  auto scatter = [&](const std::vector<Eigen::Vector3d>& sl, const Eigen::Vector3d& defect_SL, double& mean_sigma) {
+    IntercalibrationLimits limits;
+    limits.point_sigma = 0.0001;  // below the noise: the residuals decide
+    bool known[kMaxIntercalibrationPoints];
+    std::fill(std::begin(known), std::end(known), true);
+    const Eigen::Vector3d truth = X_P_SL * defect_SL;
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    mean_sigma = 0;
+    const int trials = 400;
+    for (int t = 0; t < trials; ++t) {
+      std::vector<Eigen::Vector3d> p(sl.size());
+      for (std::size_t i = 0; i < sl.size(); ++i) {
+        const double nx = noise(rng), ny = noise(rng), nz = noise(rng);
+        p[i] = X_P_SL * sl[i] + Eigen::Vector3d(nx, ny, nz);
+      }
+      const Intercalibration r = intercalibrate(sl, p, std::span(known, sl.size()), limits);
+      REQUIRE(r.status == IntercalibrationStatus::kOk);
+      const Eigen::Vector3d e = r.X_P_SL * defect_SL - truth;
+      cov += e * e.transpose() / trials;
+      mean_sigma += r.placement_sigma(r.X_P_SL * defect_SL) / trials;
+    }
+    return std::sqrt(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues().maxCoeff());
+  };
+  std::vector<Eigen::Vector3d> band;
+  for (int i = 0; i < 5; ++i) {
+    const double a = u(rng), b = u(rng), c = u(rng);
+    band.push_back({0.5 + 0.06 * a, 0.15 * b, 2.0 + 0.01 * c});
+  }
+  const Eigen::Vector3d defect(-0.1, 0.05, 2.0);
+  double predicted_band = 0;
+  const double observed_band = scatter(band, defect, predicted_band);
+  INFO("band: observed " << observed_band * 1000 << " mm, predicted " << predicted_band * 1000 << " mm");
+  CHECK(predicted_band > 0.75 * observed_band);
+  CHECK(predicted_band < 1.33 * observed_band);
+  CHECK(observed_band > 3 * sigma);  // the lever: well above one MF's noise
+
+  std::vector<Eigen::Vector3d> spread;
+  for (int i = 0; i < 10; ++i) {
+    const double a = u(rng), b = u(rng), c = u(rng);
+    spread.push_back({0.5 * a, 0.3 * b, 2.0 + 0.01 * c});
+  }
+  double predicted_spread = 0;
+  const double observed_spread = scatter(spread, defect, predicted_spread);
+  INFO("spread: observed " << observed_spread * 1000 << " mm, predicted " << predicted_spread * 1000 << " mm");
+  CHECK(predicted_spread > 0.75 * observed_spread);
+  CHECK(predicted_spread < 1.33 * observed_spread);
+  CHECK(predicted_spread * 3 < predicted_band);
 }
 
 TEST_CASE("tool pose: plane normal towards the cameras, centre, contact point, stand-off; degenerate clusters rejected") {

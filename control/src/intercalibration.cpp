@@ -3,9 +3,27 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Eigenvalues>
+
 #include "markcell/vision/geometry.hpp"
 
 namespace markcell::control {
+
+namespace {
+// How a point at lever c from the centroid moves with the fit's (dp, dtheta): [I, -[c]x].
+Eigen::Matrix<double, 3, 6> placement_jacobian(const Eigen::Vector3d& c) {
+  Eigen::Matrix<double, 3, 6> J;
+  J.leftCols<3>().setIdentity();
+  J.rightCols<3>() << 0, c.z(), -c.y(), -c.z(), 0, c.x(), c.y(), -c.x(), 0;
+  return J;
+}
+}  // namespace
+
+double Intercalibration::placement_sigma(const Eigen::Vector3d& p_P) const {
+  const Eigen::Matrix<double, 3, 6> J = placement_jacobian(p_P - centroid_P);
+  const Eigen::Matrix3d cov = J * covariance * J.transpose();
+  return std::sqrt(std::max(0.0, Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues().maxCoeff()));
+}
 
 std::string_view to_string(IntercalibrationStatus s) {
   switch (s) {
@@ -54,6 +72,25 @@ Intercalibration intercalibrate(std::span<const Eigen::Vector3d> mfs_SL, std::sp
     sq += e.cwiseAbs2();
   }
   r.rms = (sq / r.inliers).cwiseSqrt();
+  // Covariance: one MF's noise from the residuals (3 per MF, 6 taken by the fit), never
+  // below the stations' own; a fitted point moves by dp + dtheta x (b - centroid), and the
+  // information is the sum of J^T J / sigma^2 over the inliers. A rotation no layout pins
+  // down (collinear MFs) keeps a radian's uncertainty instead of an infinite one.
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < n; ++i)
+    if (inlier[i]) centroid += b[i];
+  centroid /= r.inliers;
+  const int dof = 3 * r.inliers - 6;
+  const double sigma2 = std::max(limits.point_sigma * limits.point_sigma, dof > 0 ? sq.sum() / dof : 0.0);
+  Eigen::Matrix<double, 6, 6> info = Eigen::Matrix<double, 6, 6>::Zero();
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!inlier[i]) continue;
+    const Eigen::Matrix<double, 3, 6> J = placement_jacobian(b[i] - centroid);
+    info += J.transpose() * J / sigma2;
+  }
+  info.bottomRightCorner<3, 3>().diagonal().array() += 1.0;
+  r.centroid_P = centroid;
+  r.covariance = info.inverse();
   r.status = r.paired - r.inliers > limits.max_outliers ? IntercalibrationStatus::kOutliers
              : r.max_abs.maxCoeff() > limits.max_abs_error ? IntercalibrationStatus::kAboveLimit
                                                            : IntercalibrationStatus::kOk;

@@ -9,6 +9,7 @@ std::string_view to_string(SkipReason r) {
   switch (r) {
     case SkipReason::kNone: return "";
     case SkipReason::kIntercalibration: return "inter-calibration failed or above its limit";
+    case SkipReason::kPlacement: return "inter-calibration placed it too unsurely (its MFs too few or too close together)";
     case SkipReason::kToolPose: return "no tool pose for the defect's points";
     case SkipReason::kOutOfReach: return "spraying pose out of the arm's reach";
     case SkipReason::kPlanned: return "planned out: not within the arm's reach in its turn (the plan's verdict says why)";
@@ -308,6 +309,7 @@ void MarkingSequence::place_tools(const Intercalibration& ic) {
     tools_[k] = tool_pose(std::span(pts.data(), static_cast<std::size_t>(d.count)), params_.standoff, Eigen::Vector3d::Zero(),
                           params_.min_defect_points);
     result_.defects[k].tool = tools_[k].status;
+    result_.defects[k].placement_sigma = ic.placement_sigma(tools_[k].centre);
   }
 }
 
@@ -359,10 +361,14 @@ void MarkingSequence::next_defect(Nanos now) {
 void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
   auto& r = result_.defects[static_cast<std::size_t>(defect_)];
   const bool fresh = predictor_.ready() && now - predictor_.last_update() <= params_.max_prediction_age;
+  // Placed surely enough by the inter-calibration in use; a refit with more MFs may
+  // still come (refine_intercalibration) while the arm follows.
+  const bool placed = r.placement_sigma <= params_.intercalibration.max_placement_sigma;
   if (now > deadline_) {
     const Eigen::Isometry3d X = nozzle_in_base(predictor_.predict(now), defect_);
-    r.skipped = !fresh ? SkipReason::kNoPrediction
-                       : X.translation().norm() > params_.reach ? SkipReason::kOutOfReach : SkipReason::kNotSettled;
+    r.skipped = !placed ? SkipReason::kPlacement
+                : !fresh ? SkipReason::kNoPrediction
+                : X.translation().norm() > params_.reach ? SkipReason::kOutOfReach : SkipReason::kNotSettled;
     next_defect(now);
     return;
   }
@@ -386,7 +392,7 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
   const double angle = Eigen::AngleAxisd(to_isometry(s.tool).linear().transpose() * then.linear()).angle();
   const bool within = (pos - then.translation()).norm() <= params_.settle_position && angle <= params_.settle_angle;
   // (The arm's state carries no mode over CAN: position, orientation and freshness decide.)
-  if (!within || !fresh || s.received < r.approach_start) {
+  if (!within || !fresh || !placed || s.received < r.approach_start) {
     settled_since_ = -1;
     return;
   }

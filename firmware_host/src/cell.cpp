@@ -280,6 +280,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     mp.line_direction_CamR = Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1],
                                              config.marking.line_direction[2]).normalized();
     mp.intercalibration.max_abs_error = config.marking.intercalibration_limit_mm / 1000.0;
+    mp.intercalibration.max_placement_sigma = config.marking.placement_limit_mm / 1000.0;
     mp.predictor.kind = config.marking.predictor == "two-frame" ? control::PredictorKind::kTwoFrame : control::PredictorKind::kKalman;
     mp.predictor.accel_sigma = config.marking.accel_sigma;
     mp.predictor.lateral_sigma = config.marking.lateral_sigma_mm / 1000.0;

@@ -79,7 +79,8 @@ std::string plan_json(const PredictorRun& r) {
     // Times from when the plan was made.
     const auto since = [&](Nanos t) { return t >= 0 ? num(to_seconds(t - r.panel.planned_at)) : std::string("null"); };
     j += std::string(first ? "" : ", ") + "{\"id\": " + std::to_string(d.id) + ", \"verdict\": " + quote(control::to_string(d.plan)) +
-         ", \"planned_spray_s\": " + since(d.planned_spray) + ", \"spray_s\": " + since(d.sprayed ? d.spray_requested : -1) + "}";
+         ", \"planned_spray_s\": " + since(d.planned_spray) + ", \"spray_s\": " + since(d.sprayed ? d.spray_requested : -1) +
+         ", \"placement_sigma_mm\": " + num(d.placement_sigma * 1000) + "}";
     first = false;
   }
   return j + "]}";

@@ -3,6 +3,12 @@
 // macro-features as the inspection station measured them (CamL_SL, "SL") and as the
 // marking station just found them (P, the panel frame the tracker set up) give X_P_SL by
 // a robust Arun fit; its error report is the max |error| and the RMS per axis, in P.
+//
+// The error at the MFs says nothing about a defect far from them: a few MFs close
+// together (a panel entering the view, a re-search after an occlusion) pin the fit's
+// rotation down poorly, and a defect half a metre away is placed centimetres off while
+// the MFs agree to a millimetre. The fit's covariance (Gauss-Markov, from the inliers'
+// layout and their residuals) gives each defect its own placement uncertainty.
 #include <array>
 #include <cstdint>
 #include <span>
@@ -19,6 +25,8 @@ struct IntercalibrationLimits {
   double inlier_threshold = 0.02;  // m, RANSAC consensus
   int min_points = 4;
   int max_outliers = 2;  // more MFs than this disagreeing with the fit: the record is not this panel's
+  double point_sigma = 0.0005;   // m: one MF's noise at least (both stations'), whatever the residuals say
+  double max_placement_sigma = 0.003;  // m: a defect placed less surely than this is not sprayed
 };
 
 enum class IntercalibrationStatus : std::uint8_t { kOk, kTooFewPoints, kDegenerate, kAboveLimit, kOutliers };
@@ -31,7 +39,12 @@ struct Intercalibration {
   Eigen::Vector3d rms = Eigen::Vector3d::Zero();
   int paired = 0;    // MFs known on both sides
   int inliers = 0;   // used in the fit
+  // The fit's covariance: translation at the inliers' centroid (in P) and rotation, m and rad.
+  Eigen::Vector3d centroid_P = Eigen::Vector3d::Zero();
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
   bool ok() const { return status == IntercalibrationStatus::kOk; }
+  // The standard deviation, along its worst direction, of a point the fit places at p_P, m.
+  double placement_sigma(const Eigen::Vector3d& p_P) const;
 };
 
 // mfs_SL[i] and mfs_P[i] are the same MF (the panel type's order); known_P[i] says

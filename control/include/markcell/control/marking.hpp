@@ -62,6 +62,7 @@ enum class SkipReason : std::uint8_t {
   kStopped,           // safe stop, e-stop or the panel left before its turn
   kPlanned,           // the plan: the line carries it out of reach before its turn
   kNoPanel,           // the record expired: its panel never came
+  kPlacement,         // the inter-calibration never placed it surely enough (MFs too few, too close)
 };
 std::string_view to_string(SkipReason r);
 
@@ -72,6 +73,9 @@ struct DefectResult {
   ToolPoseStatus tool = ToolPoseStatus::kOk;
   Nanos approach_start = -1;
   Nanos spray_requested = -1;
+  // How surely the inter-calibration in use places its centre (Intercalibration::
+  // placement_sigma), m: above the limit the arm follows it but does not spray.
+  double placement_sigma = 0;
   // What the controller believed at the spray: the defect's centre in CamR there and then.
   Eigen::Vector3d predicted_centre_CamR = Eigen::Vector3d::Zero();
   Eigen::Isometry3d X_Base_Nozzle = Eigen::Isometry3d::Identity();  // last set-point

@@ -70,9 +70,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   cfg.marking.predictor = predictor;
   cfg.watchdog.systemd = false;  // no service manager in a rig run
   cfg.watchdog.device = false;
-  if (real) {
-    check_real_devices(cfg);
-  } else {
+  if (!real) {  // (a real-device run's configuration was checked before the first run)
     cfg.gpio.simulated = true;
     cfg.arm.transport = ArmTransport::kSimulated;
     cfg.executive.lock_memory = false;

@@ -245,9 +245,16 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
       panel_models_.push_back(vision::load_panel_type(panel.file));
       vision_->trackers.push_back(std::make_unique<vision::PanelTracker>(*rig_, panel_models_.back(), tp));
     }
-    if (config.cameras.source == CameraSource::kRecording)
+    if (config.cameras.source == CameraSource::kRecording) {
+      // In real time the loader stands in for the cameras' receive threads: at the vision
+      // lane's priority, so that a real-time vision lane does not starve it.
+      int loader_priority = 0;
+      for (const auto& task : config.executive.tasks)
+        if (task.name == "vision") loader_priority = config.executive.lanes[static_cast<std::size_t>(task.lane)].priority;
       frame_source_ = std::make_unique<vision::RecordingFrameSource>(config.cameras.recording, config.cameras.latency,
-                                                                     clock == ClockKind::kSimulated);
+                                                                     clock == ClockKind::kSimulated, seconds(60),
+                                                                     clock == ClockKind::kReal ? loader_priority : 0);
+    }
     else if (config.cameras.source == CameraSource::kAravis)
       frame_source_ = std::make_unique<CameraFrameSource>(
           std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.left_id)),

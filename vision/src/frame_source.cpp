@@ -1,12 +1,19 @@
 #include "markcell/vision/frame_source.hpp"
 
+#include <pthread.h>
+#include <sched.h>
+
 #include <algorithm>
 
 namespace markcell::vision {
 
 RecordingFrameSource::RecordingFrameSource(const std::string& folder, Nanos latency, bool simulated_time,
-                                           Nanos stall_timeout)
-    : recording_(Recording::open(folder)), latency_(latency), simulated_(simulated_time), stall_timeout_(stall_timeout) {
+                                           Nanos stall_timeout, int loader_priority)
+    : recording_(Recording::open(folder)),
+      latency_(latency),
+      simulated_(simulated_time),
+      stall_timeout_(stall_timeout),
+      loader_priority_(loader_priority) {
   times_.reserve(recording_.size());
   // A time that does not increase makes its frame a dropped one (Recording::read says
   // so); for delivery it is held at its predecessor's time, keeping the order.
@@ -20,6 +27,12 @@ RecordingFrameSource::~RecordingFrameSource() { stop(); }
 void RecordingFrameSource::start(Nanos epoch) {
   epoch_ = epoch;
   thread_ = std::thread([this] { loader(); });
+  if (loader_priority_ > 0) {
+    // Refused (no privilege): the loader runs at normal priority, as the lanes then do too.
+    sched_param p{};
+    p.sched_priority = loader_priority_;
+    (void)pthread_setschedparam(thread_.native_handle(), SCHED_FIFO, &p);
+  }
 }
 
 void RecordingFrameSource::stop() noexcept {

@@ -48,8 +48,11 @@ class FrameSource {
 // the machine is; in real time it takes what is loaded.
 class RecordingFrameSource final : public FrameSource {
  public:
+  // `loader_priority`: SCHED_FIFO priority of the loader thread (0: normal). In real time
+  // it feeds a vision lane that may run at a real-time priority: below it, the loader
+  // starves and the frames it hands out fall ever further behind.
   RecordingFrameSource(const std::string& folder, Nanos latency, bool simulated_time,
-                       Nanos stall_timeout = seconds(60));
+                       Nanos stall_timeout = seconds(60), int loader_priority = 0);
   ~RecordingFrameSource() override;
   void start(Nanos epoch) override;
   void stop() noexcept override;
@@ -68,6 +71,7 @@ class RecordingFrameSource final : public FrameSource {
   const Nanos latency_;
   const bool simulated_;
   const Nanos stall_timeout_;
+  const int loader_priority_;
   Nanos epoch_ = 0;
   Nanos time_base_ = 0;       // the first frame's capture time
   std::vector<Nanos> times_;  // frames' capture times, read-only after construction

@@ -170,6 +170,9 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     run.peer_late_ticks = peer->late_ticks();
     if (!peer->error().empty()) run.faults.push_back("rig peer: " + peer->error());
     if (peer->priority_refused()) run.faults.push_back("rig peer: SCHED_FIFO refused, its thread ran at normal priority");
+    if (peer->spray_total() > peer->sprays().size())
+      run.faults.push_back("rig peer: " + std::to_string(peer->spray_total() - peer->sprays().size()) +
+                           " valve openings past the first " + std::to_string(peer->sprays().size()) + " not scored");
   }
   for (std::size_t i = 0; i < cell.executive().spec().tasks.size(); ++i) {
     run.deadline_misses += cell.executive().task_stats(static_cast<int>(i)).deadline_misses.load();

@@ -132,7 +132,7 @@ TEST_CASE("inter-calibration: a defect's placement uncertainty from the MFs' lay
   CHECK(predicted_spread * 3 < predicted_band);
 }
 
-TEST_CASE("tool pose: plane normal towards the cameras, centre, contact point, stand-off; degenerate clusters rejected") {
+TEST_CASE("tool pose: plane normal towards the cameras, centre, contact point, stand-off: degenerate clusters rejected") {
   // A plane through c with normal n (tilted, facing the camera at the origin), a ding in it.
   const Eigen::Vector3d n = Eigen::Vector3d(0.2, -0.1, -1.0).normalized();
   const Eigen::Vector3d c(0.3, -0.2, 3.0);

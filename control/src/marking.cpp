@@ -26,6 +26,7 @@ std::string_view to_string(MarkingState s) {
   switch (s) {
     case MarkingState::kIdle: return "idle";
     case MarkingState::kAcquire: return "acquire";
+    case MarkingState::kHold: return "hold";
     case MarkingState::kApproach: return "approach";
     case MarkingState::kSpraying: return "spraying";
     case MarkingState::kHome: return "home";
@@ -95,6 +96,10 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
     case MarkingState::kAcquire:
       if (!plc.panel_present) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
       else if (now > deadline_) fail_panel(now, "macro-features not found in time", SkipReason::kNotFound);
+      break;
+    case MarkingState::kHold:
+      if (!plc.panel_present) fail_panel(now, "panel left before its marking began", SkipReason::kStopped);
+      else if (now >= hold_until_) next_defect(now);  // no pose came to end it earlier
       break;
     case MarkingState::kApproach:
       if (!plc.panel_present) fail_panel(now, "panel left during the marking sequence", SkipReason::kStopped);
@@ -178,6 +183,7 @@ void MarkingSequence::start_panel(Nanos now) {
   serial_at_reset_ = latest_serial_;
   intercal_serial_ = 0;
   prediction_count_ = 0;
+  panel_frame_count_ = 0;
   defect_ = -1;
   next_ = 0;
   home_sent_ = false;
@@ -189,13 +195,17 @@ void MarkingSequence::start_panel(Nanos now) {
 
 void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
   latest_serial_ = std::max(latest_serial_, e.reference_serial);
-  if (state_ != MarkingState::kAcquire && state_ != MarkingState::kApproach && state_ != MarkingState::kSpraying) return;
+  const auto marking = [this] {
+    return state_ == MarkingState::kAcquire || state_ == MarkingState::kHold || state_ == MarkingState::kApproach ||
+           state_ == MarkingState::kSpraying;
+  };
+  if (!marking()) return;
   if (e.reference_serial <= serial_at_reset_ || !e.has_pose()) return;
   if (e.reference_serial != intercal_serial_) {
     // A new P (the first search, or a re-search after the panel was lost): pair its MFs
     // with the record again; the tool poses live in P.
     intercalibrate_panel(e);
-    if (state_ != MarkingState::kAcquire && state_ != MarkingState::kApproach && state_ != MarkingState::kSpraying) return;
+    if (!marking()) return;
   } else {
     refine_intercalibration(e);
   }
@@ -219,7 +229,13 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
   for (int i = 0; i < e.count; ++i)
     if (e.mfs[static_cast<std::size_t>(i)].inlier) used[n++] = e.reference_P[static_cast<std::size_t>(i)];
   predictor_.update(e.time, e.X_CamR_P, std::span(used.data(), n));
-  if (state_ == MarkingState::kAcquire && predictor_.ready()) next_defect(now);
+  if (state_ == MarkingState::kAcquire && predictor_.ready()) {
+    state_ = MarkingState::kHold;
+    hold_until_ = now + params_.placement_hold;
+    hold_most_mfs_ = 0;
+    hold_fewer_mfs_ = 0;
+  }
+  if (state_ == MarkingState::kHold) hold(now, e.inliers);
   if (!planned_ && ++poses_since_intercal_ >= params_.plan_after_poses &&
       (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying))
     plan_panel(now);
@@ -231,16 +247,8 @@ void MarkingSequence::plan_panel(Nanos now) {
   // The defects not yet done, in their order (the one under way first), where their
   // spraying poses are now and how the line moves them (the predictor's motion over 1 s).
   const int first = defect_ >= 0 && state_ == MarkingState::kApproach ? next_ - 1 : next_;
-  const Eigen::Isometry3d X_now = predictor_.predict(now), X_later = predictor_.predict(now + seconds(1));
-  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();
-  std::size_t n = 0;
-  for (int k = first; k < job_.defect_count; ++k) {
-    const int i = order_[static_cast<std::size_t>(k)];
-    const auto d = static_cast<std::size_t>(i);
-    const Eigen::Vector3d p = nozzle_in_base(X_now, i).translation();
-    if (n == 0) velocity = nozzle_in_base(X_later, i).translation() - p;
-    plan_in_[n++] = PlanDefect{i, p, tools_[d].ok()};
-  }
+  Eigen::Vector3d velocity;
+  const std::size_t n = plan_inputs(now, first, velocity);
   const auto& tool = arm_.state().tool.position;
   plan_marking(std::span(plan_in_.data(), n), Eigen::Vector3d(tool[0], tool[1], tool[2]), velocity, params_.timing,
                std::span(plan_out_.data(), n));
@@ -261,8 +269,75 @@ void MarkingSequence::plan_panel(Nanos now) {
   if (current_out) next_defect(now);
 }
 
+std::size_t MarkingSequence::plan_inputs(Nanos now, int first, Eigen::Vector3d& velocity) {
+  // Where the defects' spraying poses are now and how the line moves them (the
+  // predictor's motion over 1 s).
+  const Eigen::Isometry3d X_now = predictor_.predict(now), X_later = predictor_.predict(now + seconds(1));
+  velocity.setZero();
+  std::size_t n = 0;
+  for (int k = first; k < job_.defect_count; ++k) {
+    const int i = order_[static_cast<std::size_t>(k)];
+    const auto d = static_cast<std::size_t>(i);
+    const Eigen::Vector3d p = nozzle_in_base(X_now, i).translation();
+    if (n == 0) velocity = nozzle_in_base(X_later, i).translation() - p;
+    plan_in_[n++] = PlanDefect{i, p, tools_[d].ok()};
+  }
+  return n;
+}
+
+bool MarkingSequence::every_defect_placed() const {
+  for (int i = 0; i < job_.defect_count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    if (tools_[k].ok() && result_.defects[k].placement_sigma > params_.intercalibration.max_placement_sigma) return false;
+  }
+  return true;
+}
+
+Nanos MarkingSequence::latest_start(Nanos now) {
+  // The longest delay (within the hold's limit) after which the plan still marks as many
+  // defects as starting now; the line keeps moving them meanwhile. Bisection, 16 rounds.
+  Eigen::Vector3d velocity;
+  const std::size_t n = plan_inputs(now, next_, velocity);
+  const auto& tool = arm_.state().tool.position;
+  const Eigen::Vector3d arm(tool[0], tool[1], tool[2]);
+  const auto feasible_after = [&](double delay) {
+    for (std::size_t k = 0; k < n; ++k) {
+      plan_delayed_[k] = plan_in_[k];
+      plan_delayed_[k].position_Base += velocity * delay;
+    }
+    return plan_marking(std::span(plan_delayed_.data(), n), arm, velocity, params_.timing, std::span(plan_out_.data(), n))
+        .feasible;
+  };
+  const int now_feasible = feasible_after(0.0);
+  double lo = 0.0, hi = to_seconds(std::max<Nanos>(hold_until_ - now, 0));
+  if (feasible_after(hi) >= now_feasible) return hold_until_ - now;
+  for (int round = 0; round < 16; ++round) {
+    const double mid = 0.5 * (lo + hi);
+    (feasible_after(mid) >= now_feasible ? lo : hi) = mid;
+  }
+  return static_cast<Nanos>(lo * 1e9);
+}
+
+void MarkingSequence::hold(Nanos now, int mfs_in_view) {
+  // Once the motion is known, the plan bounds the wait (the arm's reach).
+  if (poses_since_intercal_ >= params_.plan_after_poses) hold_until_ = std::min(hold_until_, now + latest_start(now));
+  // So does the view: with the arm at home nothing hides the panel, and once it shows
+  // fewer MFs than it has (three poses running) it is leaving the view; later, the pose
+  // would rest on fewer MFs and no refit can come.
+  hold_fewer_mfs_ = mfs_in_view < hold_most_mfs_ ? hold_fewer_mfs_ + 1 : 0;
+  hold_most_mfs_ = std::max(hold_most_mfs_, mfs_in_view);
+  if (every_defect_placed() || now >= hold_until_ || hold_fewer_mfs_ >= 3) next_defect(now);
+}
+
 void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
   const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
+  if (panel_frame_count_ < kPanelFrameLog) {
+    PanelFrameRecord& frame = panel_frame_log_[panel_frame_count_++];
+    frame.reference_time = e.reference_time;
+    frame.count = e.count;
+    frame.mfs_P = e.reference_P;
+    frame.found = e.reference_known;
+  }
   result_.intercalibration = intercalibrate(std::span(job_.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
                                             std::span(e.reference_known.data(), n), params_.intercalibration);
   intercal_serial_ = e.reference_serial;
@@ -281,16 +356,7 @@ void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
   }
   std::sort(order_.begin(), order_.begin() + job_.defect_count,
             [&](int a, int b) { return key[static_cast<std::size_t>(a)] > key[static_cast<std::size_t>(b)]; });
-  // MFs the tracker did not find, placed through the record, so it picks them up.
-  TrackerRequest& req = tracker_requests_.write_slot();
-  req.reset_serial = reset_serial_;
-  req.panel_type = job_.panel_type_index;
-  req.reference_serial = e.reference_serial;
-  for (std::size_t i = 0; i < n; ++i) {
-    req.known[i] = !e.reference_known[i];
-    req.reference_P[i] = ic.X_P_SL * job_.mfs_SL[i];
-  }
-  tracker_requests_.publish();
+  place_unmeasured_mfs(e, ic);
   // The anchor the predictors follow: the centroid of the MFs found.
   Eigen::Vector3d anchor = Eigen::Vector3d::Zero();
   int count = 0;
@@ -298,6 +364,21 @@ void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
     if (e.reference_known[i]) anchor += e.reference_P[i], ++count;
   predictor_.reset(anchor / std::max(count, 1));
   if (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying) settled_since_ = -1;
+}
+
+void MarkingSequence::place_unmeasured_mfs(const vision::PoseEstimate& e, const Intercalibration& ic) {
+  const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
+  TrackerRequest& req = tracker_requests_.write_slot();
+  req.reset_serial = reset_serial_;
+  req.panel_type = job_.panel_type_index;
+  req.reference_serial = e.reference_serial;
+  req.placement_serial = ++placement_serial_;
+  req.known.fill(false);
+  for (std::size_t i = 0; i < n; ++i) {
+    req.known[i] = !e.reference_known[i] || e.reference_observed[i] == 0;
+    req.reference_P[i] = ic.X_P_SL * job_.mfs_SL[i];
+  }
+  tracker_requests_.publish();
 }
 
 void MarkingSequence::place_tools(const Intercalibration& ic) {
@@ -335,9 +416,24 @@ void MarkingSequence::refine_intercalibration(const vision::PoseEstimate& e) {
   if (!ic.ok()) return;
   result_.intercalibration = ic;
   place_tools(ic);
+  place_unmeasured_mfs(e, ic);
+}
+
+bool MarkingSequence::placed(int defect) const {
+  const auto k = static_cast<std::size_t>(defect);
+  return tools_[k].ok() && result_.defects[k].skipped == SkipReason::kNone &&
+         result_.defects[k].placement_sigma <= params_.intercalibration.max_placement_sigma;
 }
 
 void MarkingSequence::next_defect(Nanos now) {
+  // A defect the inter-calibration does not yet place surely enough waits behind the next
+  // one it does (the order otherwise kept): the arm's time goes to what it can spray now,
+  // and the refits meanwhile may place the other.
+  for (int k = next_; k < job_.defect_count; ++k)
+    if (placed(order_[static_cast<std::size_t>(k)])) {
+      std::rotate(order_.begin() + next_, order_.begin() + k, order_.begin() + k + 1);
+      break;
+    }
   while (next_ < job_.defect_count) {
     defect_ = order_[static_cast<std::size_t>(next_++)];
     auto& r = result_.defects[static_cast<std::size_t>(defect_)];
@@ -363,10 +459,19 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
   const bool fresh = predictor_.ready() && now - predictor_.last_update() <= params_.max_prediction_age;
   // Placed surely enough by the inter-calibration in use; a refit with more MFs may
   // still come (refine_intercalibration) while the arm follows.
-  const bool placed = r.placement_sigma <= params_.intercalibration.max_placement_sigma;
+  const bool placed_now = r.placement_sigma <= params_.intercalibration.max_placement_sigma;
+  if (!placed_now) {
+    // Another defect placed meanwhile goes first; this one follows it (next_defect).
+    for (int k = next_; k < job_.defect_count; ++k)
+      if (placed(order_[static_cast<std::size_t>(k)])) {
+        --next_;  // order_[next_] is this defect again
+        next_defect(now);
+        return;
+      }
+  }
   if (now > deadline_) {
     const Eigen::Isometry3d X = nozzle_in_base(predictor_.predict(now), defect_);
-    r.skipped = !placed ? SkipReason::kPlacement
+    r.skipped = !placed_now ? SkipReason::kPlacement
                 : !fresh ? SkipReason::kNoPrediction
                 : X.translation().norm() > params_.reach ? SkipReason::kOutOfReach : SkipReason::kNotSettled;
     next_defect(now);
@@ -392,7 +497,7 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
   const double angle = Eigen::AngleAxisd(to_isometry(s.tool).linear().transpose() * then.linear()).angle();
   const bool within = (pos - then.translation()).norm() <= params_.settle_position && angle <= params_.settle_angle;
   // (The arm's state carries no mode over CAN: position, orientation and freshness decide.)
-  if (!within || !fresh || !placed || s.received < r.approach_start) {
+  if (!within || !fresh || !placed_now || s.received < r.approach_start) {
     settled_since_ = -1;
     return;
   }

@@ -97,11 +97,13 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
       v->trackers[static_cast<std::size_t>(v->active)]->reset();
     }
     vision::PanelTracker& t = *v->trackers[static_cast<std::size_t>(v->active)];
-    if (r.reference_serial != 0 && r.reference_serial == t.last().reference_serial && r.reference_serial != v->hint_seen) {
-      v->hint_seen = r.reference_serial;
-      for (int i = 0; i < vision::kMaxMacroFeatures; ++i)
-        if (r.known[static_cast<std::size_t>(i)] && !t.reference_known()[static_cast<std::size_t>(i)])
-          t.set_reference(i, r.reference_P[static_cast<std::size_t>(i)]);
+    if (r.reference_serial != 0 && r.reference_serial == t.last().reference_serial && r.placement_serial != v->hint_seen) {
+      v->hint_seen = r.placement_serial;
+      // Placed anew: MFs the tracker has no position for, or only a placed one it has not
+      // measured yet; never one it has measured.
+      for (std::size_t i = 0; i < vision::kMaxMacroFeatures; ++i)
+        if (r.known[i] && (!t.reference_known()[i] || t.last().reference_observed[i] == 0))
+          t.set_reference(static_cast<int>(i), r.reference_P[i]);
     }
   }
   if (v->source == nullptr) return control::TaskResult::kOk;
@@ -288,6 +290,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
                                              config.marking.line_direction[2]).normalized();
     mp.intercalibration.max_abs_error = config.marking.intercalibration_limit_mm / 1000.0;
     mp.intercalibration.max_placement_sigma = config.marking.placement_limit_mm / 1000.0;
+    mp.placement_hold = config.marking.placement_hold;
     mp.predictor.kind = config.marking.predictor == "two-frame" ? control::PredictorKind::kTwoFrame : control::PredictorKind::kKalman;
     mp.predictor.accel_sigma = config.marking.accel_sigma;
     mp.predictor.lateral_sigma = config.marking.lateral_sigma_mm / 1000.0;

@@ -597,7 +597,7 @@ void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
   const std::string P = "marking";
   if (!r.map(node, P, {"standoff_m", "command_lead_ms", "settle_mm", "settle_deg", "settle_ms", "max_prediction_age_ms",
                        "defect_timeout_s", "acquire_timeout_s", "home_timeout_s", "predictor", "intercalibration_limit_mm",
-                       "placement_limit_mm",
+                       "placement_limit_mm", "placement_hold_s",
                        "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm", "plan_settle_ms", "record_timeout_s", "record_expiry_s"}))
     return;
   r.number(node, P, "standoff_m", m.standoff_m, 0.01, 1.0, false);
@@ -623,6 +623,9 @@ void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
   r.choice(node, P, "predictor", m.predictor, {{"kalman", std::string("kalman")}, {"two-frame", std::string("two-frame")}}, false);
   r.number(node, P, "intercalibration_limit_mm", m.intercalibration_limit_mm, 0.1, 1000.0, false);
   r.number(node, P, "placement_limit_mm", m.placement_limit_mm, 0.1, 1000.0, false);
+  double hold = to_seconds(m.placement_hold);
+  r.number(node, P, "placement_hold_s", hold, 0.0, 600.0, false);
+  m.placement_hold = static_cast<Nanos>(hold * 1e9);
   r.vec3(node, P, "line_direction", m.line_direction, -1.0, 1.0, false);
   if (std::hypot(m.line_direction[0], m.line_direction[1], m.line_direction[2]) < 0.5)
     r.error(node["line_direction"], P + ".line_direction", "must be a unit vector (the line's travel in CamR)");

@@ -13,6 +13,7 @@
 #include "markcell/drivers/gpiod_lines.hpp"
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/vision/frame_source.hpp"
+#include "markcell/vision/geometry.hpp"
 #include "markcell/vision/recording.hpp"
 #include "markcell/vision/render.hpp"
 #include "markcell/host/rig/hil_peer.hpp"
@@ -186,6 +187,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     run.faults.emplace_back(line);
   }
   for (std::size_t i = 0; i < marking.prediction_samples(); ++i) run.samples.push_back(marking.prediction_sample(i));
+  for (std::size_t i = 0; i < marking.panel_frames(); ++i) run.panel_frames.push_back(marking.panel_frame(i));
   int sprayed = 0;
   Nanos first = -1;
   for (int i = 0; i < run.panel.defect_count; ++i) {
@@ -230,6 +232,23 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
       run.prediction_per_defect.push_back({d.id, e});
     }
   }
+  // Where each panel frame P truly lies: the rigid fit of its set-up MFs' true positions
+  // (CamR at that frame) onto where P put them, X_P_CamRref (identity if P is unknown).
+  auto X_P_CamRref = [&](Nanos reference_time) {
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    for (const auto& frame : run.panel_frames) {
+      if (frame.reference_time != reference_time) continue;
+      std::vector<Eigen::Vector3d> a, b;
+      const auto n = std::min(static_cast<std::size_t>(std::max(frame.count, 0)), panel.macro_features.size());
+      for (std::size_t k = 0; k < n; ++k)
+        if (frame.found[k]) {
+          a.push_back(truth.at(reference_time) * panel.macro_features[k]);
+          b.push_back(frame.mfs_P[k]);
+        }
+      if (const vision::RigidFit fit = vision::fit_rigid(a, b); fit.valid) X = fit.X_B_A;
+    }
+    return X;
+  };
   double sq_pose = 0, sq_defect = 0;
   for (const auto& s : run.samples) {
     const auto c = true_centre(s.defect, s.time);
@@ -238,8 +257,10 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     if (!c) continue;
     // P is CamR at the frame that set it up: the truth moves the defect's centre in P from
     // there to now.
-    const Eigen::Vector3d moved = truth.at(s.time) * truth.at(s.reference_time).inverse() * s.centre_P;
+    const Eigen::Isometry3d motion = truth.at(s.time) * truth.at(s.reference_time).inverse();
+    const Eigen::Vector3d moved = motion * X_P_CamRref(s.reference_time).inverse() * s.centre_P;
     const double e = (s.estimated_CamR - moved).norm(), d = (s.estimated_CamR - *c).norm();
+    run.pose_error_setup_frame_max = std::max(run.pose_error_setup_frame_max, (s.estimated_CamR - motion * s.centre_P).norm());
     run.pose_error_max = std::max(run.pose_error_max, e);
     run.defect_error_max = std::max(run.defect_error_max, d);
     sq_pose += e * e;

@@ -119,7 +119,8 @@ std::string run_json(const PredictorRun& r, const std::string& ind) {
   o << ind << "\"pose_error_mm\": {\"max\": " << (r.pose_samples > 0 ? num(r.pose_error_max * 1000) : "null")
     << ", \"rms\": " << (r.pose_samples > 0 ? num(r.pose_error_rms * 1000) : "null") << ", \"samples\": " << r.pose_samples
     << ", \"missing_mfs_max\": " << (r.pose_samples_missing > 0 ? num(r.pose_error_missing_max * 1000) : "null")
-    << ", \"missing_mfs_samples\": " << r.pose_samples_missing << "},\n";
+    << ", \"missing_mfs_samples\": " << r.pose_samples_missing
+    << ", \"setup_frame_max\": " << (r.pose_samples > 0 ? num(r.pose_error_setup_frame_max * 1000) : "null") << "},\n";
   o << ind << "\"defect_error_mm\": {\"max\": " << (r.pose_samples > 0 ? num(r.defect_error_max * 1000) : "null")
     << ", \"rms\": " << (r.pose_samples > 0 ? num(r.defect_error_rms * 1000) : "null") << "},\n";
   o << ind << "\"seconds_per_defect\": " << (c.sprayed > 0 ? num(r.seconds_per_defect) : "null") << ",\n";

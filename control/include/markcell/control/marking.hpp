@@ -4,7 +4,9 @@
 //   idle -> (PLC panel present, cycle enabled, an inspection record) -> acquire: the
 //   vision task re-initialises the panel's MFs; the inter-calibration pairs them with the
 //   record (X_P_SL, Table I metrics; above the limit: no marking, PLC fault) and each
-//   defect gets its tool pose -> for each defect, downstream first: approach (the arm
+//   defect gets its tool pose -> hold (the arm at home) until the refits place every
+//   defect surely enough, or waiting longer would cost one -> for each defect,
+//   downstream first: approach (the arm
 //   follows the nozzle pose predicted for the time the set-point takes effect), settle
 //   (within tolerance for the settle time, on a fresh prediction), spray (one valve
 //   pulse) -> home -> PLC done (or fault) -> wait for the panel to leave -> idle.
@@ -128,9 +130,16 @@ struct MarkingParams {
   // many poses of the panel have come after its inter-calibration: the motion is known.
   ArmTimingModel timing;
   int plan_after_poses = 6;
+  // A panel entering the view shows the MFs of its leading edge first; fitted to those,
+  // the inter-calibration levers their noise out to the defects beyond. The sequence
+  // holds the arm at home after the inter-calibration until refits with the MFs that
+  // come into view place every defect within intercalibration.max_placement_sigma, at
+  // most this long, and no longer than the plan says it can wait without losing a
+  // defect. 0: start at once (defects not yet placed are followed until they are).
+  Nanos placement_hold = seconds(6);
 };
 
-enum class MarkingState : std::uint8_t { kIdle, kAcquire, kApproach, kSpraying, kHome, kReporting, kWaitRelease };
+enum class MarkingState : std::uint8_t { kIdle, kAcquire, kHold, kApproach, kSpraying, kHome, kReporting, kWaitRelease };
 std::string_view to_string(MarkingState s);
 
 // Fig. 8 of the paper: at each new pose, where the predictor had put the current defect
@@ -148,12 +157,28 @@ struct PredictionSample {
   int inliers = 0, count = 0;
 };
 
+// A panel frame P as the tracker set it up: the MFs it found then and where it put them.
+// P's place on the panel is fixed by these, to their triangulation noise: the rig takes
+// that out to score the tracked motion alone (the tool poses and the inter-calibration
+// live in the same P, so it moves no spray).
+struct PanelFrameRecord {
+  Nanos reference_time = 0;
+  int count = 0;
+  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> mfs_P{};
+  std::array<bool, vision::kMaxMacroFeatures> found{};
+};
+
 // Control lane -> vision lane: start a new panel, and MF positions the tracker did not
 // find itself (from the inspection record through the inter-calibration).
 struct TrackerRequest {
   std::uint32_t reset_serial = 0;      // a change asks for a new search
   int panel_type = 0;                  // of this panel type
   std::uint32_t reference_serial = 0;  // the tracker's P these positions belong to
+  // Changes with every new set of positions: each refit of the inter-calibration places
+  // the MFs the tracker has not measured itself again, more surely than the last (the
+  // first fit levers its few MFs' noise out to the far ones by more than the tracker's
+  // re-acquisition accepts).
+  std::uint32_t placement_serial = 0;
   std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> reference_P{};
   std::array<bool, vision::kMaxMacroFeatures> known{};
 };
@@ -161,6 +186,7 @@ struct TrackerRequest {
 class MarkingSequence {
  public:
   static constexpr std::size_t kPredictionLog = 1 << 13;
+  static constexpr std::size_t kPanelFrameLog = 16;
   MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve, drivers::GpioLines& lines,
                   const PlcLineMap& plc, const PlcIo& plc_io, TripleBuffer<vision::PoseEstimate>& estimates,
                   TripleBuffer<TrackerRequest>& tracker_requests);
@@ -182,6 +208,9 @@ class MarkingSequence {
   const PanelResult& current() const { return result_; }
   std::size_t prediction_samples() const { return std::min(prediction_count_, kPredictionLog); }
   const PredictionSample& prediction_sample(std::size_t i) const { return prediction_log_[i]; }
+  // The current panel's frames P (its first kPanelFrameLog), oldest first.
+  std::size_t panel_frames() const { return std::min(panel_frame_count_, kPanelFrameLog); }
+  const PanelFrameRecord& panel_frame(std::size_t i) const { return panel_frame_log_[i]; }
 
  private:
   void on_estimate(const vision::PoseEstimate& e, Nanos now);
@@ -189,10 +218,20 @@ class MarkingSequence {
   void intercalibrate_panel(const vision::PoseEstimate& e);
   void refine_intercalibration(const vision::PoseEstimate& e);
   void place_tools(const Intercalibration& ic);
+  // The MFs the tracker has not measured, placed through the record, for it to pick up.
+  void place_unmeasured_mfs(const vision::PoseEstimate& e, const Intercalibration& ic);
   void next_defect(Nanos now);
   void approach(Nanos now, const TaskContext& ctx);
   void finish_panel(Nanos now);
   void plan_panel(Nanos now);
+  // The plan's inputs for the defects not yet done (the one under way first): their
+  // spraying poses now and the line's motion; returns how many.
+  std::size_t plan_inputs(Nanos now, int first, Eigen::Vector3d& velocity);
+  void hold(Nanos now, int mfs_in_view);
+  bool every_defect_placed() const;
+  // Usable, not skipped, and placed by the inter-calibration within the limit.
+  bool placed(int defect) const;
+  Nanos latest_start(Nanos now);
   void panel_without_record(Nanos now);
   void record_without_panel(Nanos now);
   void take_job(Nanos now);
@@ -223,6 +262,7 @@ class MarkingSequence {
   std::uint32_t serial_at_reset_ = 0;   // tracker serial when the search was asked for
   std::uint32_t latest_serial_ = 0;
   std::uint32_t intercal_serial_ = 0;   // the P the panel's tool poses are in (0: none yet)
+  std::uint32_t placement_serial_ = 0;
   std::array<DefectToolPose, kMaxDefects> tools_{};
   std::array<int, kMaxDefects> order_{};
   int next_ = 0;                        // position in order_
@@ -237,10 +277,15 @@ class MarkingSequence {
   Nanos record_since_ = -1;   // a record waiting in idle without a panel
   bool fault_until_next_panel_ = false;  // an expired record's fault, held with no panel to release it
   bool planned_ = false;
-  std::array<PlanDefect, kMaxDefects> plan_in_{};
+  Nanos hold_until_ = 0;                // the hold ends then at the latest
+  int hold_most_mfs_ = 0;               // the most MFs a pose used during the hold
+  int hold_fewer_mfs_ = 0;              // poses running with fewer than that
+  std::array<PlanDefect, kMaxDefects> plan_in_{}, plan_delayed_{};
   std::array<PlanEntry, kMaxDefects> plan_out_{};
   std::array<PredictionSample, kPredictionLog> prediction_log_{};
   std::size_t prediction_count_ = 0;
+  std::array<PanelFrameRecord, kPanelFrameLog> panel_frame_log_{};
+  std::size_t panel_frame_count_ = 0;
 };
 
 }  // namespace markcell::control

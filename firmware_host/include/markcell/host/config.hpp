@@ -163,7 +163,8 @@ struct MarkingConfig {
   Nanos home_timeout = seconds(10);
   std::string predictor = "kalman";  // kalman | two-frame
   double intercalibration_limit_mm = 20.0;
-  double placement_limit_mm = 3.0;  // a defect placed less surely (1 sigma) than this is not sprayed
+  double placement_limit_mm = 1.0;  // a defect placed less surely (1 sigma) than this is not sprayed
+  Nanos placement_hold = seconds(6);  // the arm waits at home at most this long for every defect to be placed
   std::array<double, 3> line_direction{1.0, 0.0, 0.0};  // CamR
   double accel_sigma = 0.005;
   double lateral_sigma_mm = 0.4;

@@ -62,10 +62,13 @@ struct PredictorRun {
   };
   std::vector<DefectPrediction> prediction_per_defect;
   Eigen::Vector3d one_frame_max_abs = Eigen::Vector3d::Zero();  // estimated vs one-frame-ahead prediction, m
-  // Panel pose error: where the tracked motion since the frame that set P up puts the
-  // defect being marked vs where the true motion puts it, every frame of the approach, m;
-  // and its max over the frames with MFs missing (occluded or out of view).
-  double pose_error_max = 0, pose_error_rms = 0, pose_error_missing_max = 0;
+  // Panel pose error: where the tracked pose puts the defect being marked vs where the
+  // true motion puts that point of P, every frame of the approach, m; P placed on the
+  // panel as its set-up MFs place it (PanelFrameRecord); and its max over the frames with
+  // MFs missing (occluded or out of view). setup_frame: the same with P taken as exactly
+  // CamR at set-up, which adds P's own placement error (one frame's triangulation of the
+  // MFs then in view) though no spray moves with it.
+  double pose_error_max = 0, pose_error_rms = 0, pose_error_missing_max = 0, pose_error_setup_frame_max = 0;
   int pose_samples = 0, pose_samples_missing = 0;
   // The whole chain: the defect's position from the inspection record, through the
   // inter-calibration and the tracked pose, vs truth, m.
@@ -78,6 +81,7 @@ struct PredictorRun {
   std::string timing_report;
   std::vector<std::string> faults;
   std::vector<control::PredictionSample> samples;
+  std::vector<control::PanelFrameRecord> panel_frames;
   std::vector<TimedPoint> truth_samples;        // the same defect's true position at each sample
   std::string command_log;                      // every command to the arm and the valve, simulated time
 };

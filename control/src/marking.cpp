@@ -96,6 +96,16 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
     case MarkingState::kAcquire:
       if (!plc.panel_present) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
       else if (now > deadline_) fail_panel(now, "macro-features not found in time", SkipReason::kNotFound);
+      else if (search_when_home_) {
+        // The new search waits for the arm at home: in the view, its outline crossing the
+        // panel's edges makes corners that stand still while the panel moves.
+        const auto& s = arm_.state();
+        if ((s.flags & drivers::kHomed) != 0 && s.received > home_sent_at_ + params_.command_lead) {
+          search_when_home_ = false;
+          request_search();
+          deadline_ = now + params_.acquire_timeout;
+        }
+      }
       break;
     case MarkingState::kHold:
       if (!plc.panel_present) fail_panel(now, "panel left before its marking began", SkipReason::kStopped);
@@ -174,14 +184,10 @@ void MarkingSequence::start_panel(Nanos now) {
   set_plc(plc_.fault, false);
   fault_until_next_panel_ = false;
   set_plc(plc_.busy, true);
-  // Ask the vision lane for a fresh search; poses of the previous P no longer count.
-  TrackerRequest& req = tracker_requests_.write_slot();
-  req = TrackerRequest{};
-  req.reset_serial = ++reset_serial_;
-  req.panel_type = job_.panel_type_index;
-  tracker_requests_.publish();
-  serial_at_reset_ = latest_serial_;
+  request_search();
   intercal_serial_ = 0;
+  intercal_failures_ = 0;
+  search_when_home_ = false;
   prediction_count_ = 0;
   panel_frame_count_ = 0;
   defect_ = -1;
@@ -191,6 +197,16 @@ void MarkingSequence::start_panel(Nanos now) {
   poses_since_intercal_ = 0;
   deadline_ = now + params_.acquire_timeout;
   state_ = MarkingState::kAcquire;
+}
+
+void MarkingSequence::request_search() {
+  // Ask the vision lane for a fresh search; poses of the previous P no longer count.
+  TrackerRequest& req = tracker_requests_.write_slot();
+  req = TrackerRequest{};
+  req.reset_serial = ++reset_serial_;
+  req.panel_type = job_.panel_type_index;
+  tracker_requests_.publish();
+  serial_at_reset_ = latest_serial_;
 }
 
 void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
@@ -204,8 +220,7 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
   if (e.reference_serial != intercal_serial_) {
     // A new P (the first search, or a re-search after the panel was lost): pair its MFs
     // with the record again; the tool poses live in P.
-    intercalibrate_panel(e);
-    if (!marking()) return;
+    if (!intercalibrate_panel(e) || !marking()) return;
   } else {
     refine_intercalibration(e);
   }
@@ -329,7 +344,7 @@ void MarkingSequence::hold(Nanos now, int mfs_in_view) {
   if (every_defect_placed() || now >= hold_until_ || hold_fewer_mfs_ >= 3) next_defect(now);
 }
 
-void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
+bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
   const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
   if (panel_frame_count_ < kPanelFrameLog) {
     PanelFrameRecord& frame = panel_frame_log_[panel_frame_count_++];
@@ -338,23 +353,44 @@ void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
     frame.mfs_P = e.reference_P;
     frame.found = e.reference_known;
   }
-  result_.intercalibration = intercalibrate(std::span(job_.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
-                                            std::span(e.reference_known.data(), n), params_.intercalibration);
+  const Intercalibration fit = intercalibrate(std::span(job_.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
+                                              std::span(e.reference_known.data(), n), params_.intercalibration);
   intercal_serial_ = e.reference_serial;
-  const Intercalibration& ic = result_.intercalibration;
-  if (!ic.ok()) {
-    fail_panel(e.time, to_string(ic.status), SkipReason::kIntercalibration);
-    return;
+  if (!fit.ok()) {
+    // A search that found corners the record does not support (a person or the arm in
+    // front of the panel, taken for MFs) is made again, a few times; a record that is not
+    // this panel's fails every time. (Not with a pulse in flight: its result comes first.)
+    if (++intercal_failures_ < kIntercalibrationAttempts && state_ != MarkingState::kSpraying) {
+      serial_at_reset_ = latest_serial_;  // this P's poses no longer count
+      if (state_ == MarkingState::kApproach) --next_;  // the defect under way is taken up again
+      defect_ = -1;
+      settled_since_ = -1;
+      drivers::ArmCommand home;
+      home.mode = drivers::ArmMode::kHome;
+      home.time = e.time;
+      arm_.send(home, e.time);
+      home_sent_at_ = e.time;
+      search_when_home_ = true;
+      deadline_ = e.time + params_.home_timeout + params_.acquire_timeout;
+      state_ = MarkingState::kAcquire;
+      return false;
+    }
+    result_.intercalibration = fit;
+    fail_panel(e.time, to_string(fit.status), SkipReason::kIntercalibration);
+    return false;
   }
+  result_.intercalibration = fit;
+  const Intercalibration& ic = result_.intercalibration;
   intercal_mfs_ = ic.inliers;
   // Tool poses in P, and the defects' order: downstream first.
   place_tools(ic);
+  // (A P set up anew mid-sequence orders only the defects not yet taken.)
   std::array<double, kMaxDefects> key{};
   for (int i = 0; i < job_.defect_count; ++i) {
     key[static_cast<std::size_t>(i)] = tools_[static_cast<std::size_t>(i)].centre.dot(params_.line_direction_CamR);
-    order_[static_cast<std::size_t>(i)] = i;
+    if (next_ == 0) order_[static_cast<std::size_t>(i)] = i;
   }
-  std::sort(order_.begin(), order_.begin() + job_.defect_count,
+  std::sort(order_.begin() + next_, order_.begin() + job_.defect_count,
             [&](int a, int b) { return key[static_cast<std::size_t>(a)] > key[static_cast<std::size_t>(b)]; });
   place_unmeasured_mfs(e, ic);
   // The anchor the predictors follow: the centroid of the MFs found.
@@ -364,6 +400,7 @@ void MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
     if (e.reference_known[i]) anchor += e.reference_P[i], ++count;
   predictor_.reset(anchor / std::max(count, 1));
   if (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying) settled_since_ = -1;
+  return true;
 }
 
 void MarkingSequence::place_unmeasured_mfs(const vision::PoseEstimate& e, const Intercalibration& ic) {

@@ -245,7 +245,13 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
           a.push_back(truth.at(reference_time) * panel.macro_features[k]);
           b.push_back(frame.mfs_P[k]);
         }
-      if (const vision::RigidFit fit = vision::fit_rigid(a, b); fit.valid) X = fit.X_B_A;
+      // Robust: a search can take another corner for an MF (a person in front); the
+      // inter-calibration leaves it out, and so does this.
+      std::array<bool, vision::kMaxMacroFeatures> inlier{};
+      vision::RobustFitOptions robust;
+      robust.inlier_threshold = 0.01;
+      const vision::RigidFit fit = vision::fit_rigid_robust(a, b, robust, std::span(inlier.data(), a.size()));
+      if (fit.valid) X = fit.X_B_A;
     }
     return X;
   };

@@ -215,7 +215,9 @@ class MarkingSequence {
  private:
   void on_estimate(const vision::PoseEstimate& e, Nanos now);
   void start_panel(Nanos now);
-  void intercalibrate_panel(const vision::PoseEstimate& e);
+  // False: no usable P (the panel failed, or a new search was asked for).
+  bool intercalibrate_panel(const vision::PoseEstimate& e);
+  void request_search();
   void refine_intercalibration(const vision::PoseEstimate& e);
   void place_tools(const Intercalibration& ic);
   // The MFs the tracker has not measured, placed through the record, for it to pick up.
@@ -263,6 +265,11 @@ class MarkingSequence {
   std::uint32_t latest_serial_ = 0;
   std::uint32_t intercal_serial_ = 0;   // the P the panel's tool poses are in (0: none yet)
   std::uint32_t placement_serial_ = 0;
+  // Searches per panel whose MFs the record did not support; at kIntercalibrationAttempts
+  // the panel fails.
+  static constexpr int kIntercalibrationAttempts = 3;
+  int intercal_failures_ = 0;
+  bool search_when_home_ = false;  // a repeated search, asked for once the arm is home
   std::array<DefectToolPose, kMaxDefects> tools_{};
   std::array<int, kMaxDefects> order_{};
   int next_ = 0;                        // position in order_

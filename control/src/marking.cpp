@@ -301,9 +301,11 @@ std::size_t MarkingSequence::plan_inputs(Nanos now, int first, Eigen::Vector3d& 
 }
 
 bool MarkingSequence::every_defect_placed() const {
+  // The defects still to do (a hold after a new search mid-panel comes after some).
   for (int i = 0; i < job_.defect_count; ++i) {
     const auto k = static_cast<std::size_t>(i);
-    if (tools_[k].ok() && result_.defects[k].placement_sigma > params_.intercalibration.max_placement_sigma) return false;
+    const DefectResult& r = result_.defects[k];
+    if (tools_[k].ok() && !r.sprayed && r.skipped == SkipReason::kNone && !placed(i)) return false;
   }
   return true;
 }

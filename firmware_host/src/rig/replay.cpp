@@ -233,27 +233,28 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     }
   }
   // Where each panel frame P truly lies: the rigid fit of its set-up MFs' true positions
-  // (CamR at that frame) onto where P put them, X_P_CamRref (identity if P is unknown).
-  auto X_P_CamRref = [&](Nanos reference_time) {
-    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-    for (const auto& frame : run.panel_frames) {
-      if (frame.reference_time != reference_time) continue;
-      std::vector<Eigen::Vector3d> a, b;
-      const auto n = std::min(static_cast<std::size_t>(std::max(frame.count, 0)), panel.macro_features.size());
-      for (std::size_t k = 0; k < n; ++k)
-        if (frame.found[k]) {
-          a.push_back(truth.at(reference_time) * panel.macro_features[k]);
-          b.push_back(frame.mfs_P[k]);
-        }
-      // Robust: a search can take another corner for an MF (a person in front); the
-      // inter-calibration leaves it out, and so does this.
-      std::array<bool, vision::kMaxMacroFeatures> inlier{};
-      vision::RobustFitOptions robust;
-      robust.inlier_threshold = 0.01;
-      const vision::RigidFit fit = vision::fit_rigid_robust(a, b, robust, std::span(inlier.data(), a.size()));
-      if (fit.valid) X = fit.X_B_A;
-    }
-    return X;
+  // (CamR at that frame) onto where P put them, X_P_CamRref; once per P.
+  std::vector<std::pair<Nanos, Eigen::Isometry3d>> placements;
+  for (const auto& frame : run.panel_frames) {
+    std::vector<Eigen::Vector3d> a, b;
+    const auto n = std::min(static_cast<std::size_t>(std::max(frame.count, 0)), panel.macro_features.size());
+    for (std::size_t k = 0; k < n; ++k)
+      if (frame.found[k]) {
+        a.push_back(truth.at(frame.reference_time) * panel.macro_features[k]);
+        b.push_back(frame.mfs_P[k]);
+      }
+    // Robust: a search can take another corner for an MF (a person in front); the
+    // inter-calibration leaves it out, and so does this.
+    std::array<bool, vision::kMaxMacroFeatures> inlier{};
+    vision::RobustFitOptions robust;
+    robust.inlier_threshold = 0.01;
+    const vision::RigidFit fit = vision::fit_rigid_robust(a, b, robust, std::span(inlier.data(), a.size()));
+    placements.emplace_back(frame.reference_time, fit.valid ? fit.X_B_A : Eigen::Isometry3d::Identity());
+  }
+  auto X_P_CamRref = [&](Nanos reference_time) {  // identity for a P not logged
+    for (const auto& [time, X] : placements)
+      if (time == reference_time) return X;
+    return Eigen::Isometry3d(Eigen::Isometry3d::Identity());
   };
   double sq_pose = 0, sq_defect = 0;
   for (const auto& s : run.samples) {
@@ -261,8 +262,8 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     run.truth_samples.push_back({s.time, c ? *c : Eigen::Vector3d::Zero()});
     run.one_frame_max_abs = run.one_frame_max_abs.cwiseMax((s.predicted_CamR - s.estimated_CamR).cwiseAbs());
     if (!c) continue;
-    // P is CamR at the frame that set it up: the truth moves the defect's centre in P from
-    // there to now.
+    // P is (about) CamR at the frame that set it up, placed on the panel as above: the truth
+    // moves the defect's centre in P from there to now.
     const Eigen::Isometry3d motion = truth.at(s.time) * truth.at(s.reference_time).inverse();
     const Eigen::Vector3d moved = motion * X_P_CamRref(s.reference_time).inverse() * s.centre_P;
     const double e = (s.estimated_CamR - moved).norm(), d = (s.estimated_CamR - *c).norm();

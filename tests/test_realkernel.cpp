@@ -413,14 +413,6 @@ TEST_CASE("the watchdog device on the kernel's softdog: armed with a timeout, fe
 
 namespace {
 
-// `from` replaced by `to` in `text`, once; a test failure when `from` is not there.
-void replace_once(std::string& text, const std::string& from, const std::string& to) {
-  const auto at = text.find(from);
-  INFO("looking for: " << from);
-  REQUIRE(at != std::string::npos);
-  text.replace(at, from.size(), to);
-}
-
 // The example configuration on the guest's real devices: the gpio-sim chip and vcan0,
 // the calibration and panel files from the source tree, no simulated world. The guest is
 // one emulated CPU, 10-20x slower than the host, so some limits are an emulator's: task
@@ -431,18 +423,18 @@ void replace_once(std::string& text, const std::string& from, const std::string&
 // What runs here is the devices' code path end to end; the cell's timing is measured on
 // the target (`markcell bench loop`).
 std::string real_device_config() {
-  std::string text = test::read_file(test::source_path("config/cell.example.yaml"));
-  const std::string config = test::source_path("config") + "/";
-  replace_once(text, "    simulated: true ", "    simulated: false");
-  replace_once(text, "    chip: gpiochip0 ", "    chip: " + env("MARKCELL_GPIO_CHIP") + " ");
-  replace_once(text, "    transport: simulated ", "    transport: can ");
-  replace_once(text, "      interface: can0", "      interface: " + env("MARKCELL_VCAN"));
-  replace_once(text, "      heartbeat_timeout_ms: 150", "      heartbeat_timeout_ms: 1000");
-  replace_once(text, "  lane_stall_ms: 100 ", "  lane_stall_ms: 5000");
-  replace_once(text, "  lock_memory: true", "  lock_memory: false");
-  replace_once(text, "{core: 1, priority: 80}", "{core: -1, priority: 80}");
-  replace_once(text, "{core: 0, priority: 60}", "{core: -1, priority: 60}");
-  replace_once(text, "  max_prediction_age_ms: 400 ", "  max_prediction_age_ms: 1000");
+  std::string text = test::example_config_text({
+      {"    simulated: true ", "    simulated: false"},
+      {"    chip: gpiochip0 ", "    chip: " + env("MARKCELL_GPIO_CHIP") + " "},
+      {"    transport: simulated ", "    transport: can "},
+      {"      interface: can0", "      interface: " + env("MARKCELL_VCAN")},
+      {"      heartbeat_timeout_ms: 150", "      heartbeat_timeout_ms: 1000"},
+      {"  lane_stall_ms: 100 ", "  lane_stall_ms: 5000"},
+      {"  lock_memory: true", "  lock_memory: false"},
+      {"{core: 1, priority: 80}", "{core: -1, priority: 80}"},
+      {"{core: 0, priority: 60}", "{core: -1, priority: 60}"},
+      {"  max_prediction_age_ms: 400 ", "  max_prediction_age_ms: 1000"},
+  });
   // The example's task table with an emulator's budgets, without the simulated world.
   const auto tasks = text.find("  tasks:");
   const auto tasks_end = text.find("\nwatchdog:");
@@ -455,8 +447,6 @@ std::string real_device_config() {
     marking:     {lane: control, period_us: 2000, phase_us: 0, budget_us: 2000, on_overrun: log}
     vision:      {lane: vision,  period_us: 33000, phase_us: 0, budget_us: 33000, on_overrun: log}
 )");
-  for (const char* file : {"calibration/marking_stereo.yaml", "calibration/base.yaml", "panels/door.yaml", "panels/fender.yaml"})
-    replace_once(text, std::string(" ") + file, " " + config + file);
   return text;
 }
 

@@ -51,16 +51,7 @@ std::string replay_report(const std::string& recording, const std::string& args,
 // The example configuration with each `from` replaced by its `to`, written into `dir`
 // with its calibration and panel files named by absolute paths.
 std::string example_config_with(const test::TempDir& dir, const std::vector<std::pair<std::string, std::string>>& edits) {
-  std::string text = read_file(source_path("config/cell.example.yaml"));
-  for (const auto& [from, to] : edits) {
-    const auto at = text.find(from);
-    INFO(from);
-    REQUIRE(at != std::string::npos);
-    text.replace(at, from.size(), to);
-  }
-  for (const std::string file : {"calibration/marking_stereo.yaml", "calibration/base.yaml", "panels/door.yaml", "panels/fender.yaml"})
-    text.replace(text.find(" " + file), file.size() + 1, " " + source_path("config/" + file));
-  return dir.write("cell.yaml", text);
+  return dir.write("cell.yaml", test::example_config_text(edits));
 }
 
 // `BINARY sim ARGS -q --one-predictor` into FOLDER next to markcell, generated once per

@@ -464,15 +464,18 @@ bool MarkingSequence::placed(int defect) const {
          result_.defects[k].placement_sigma <= params_.intercalibration.max_placement_sigma;
 }
 
+int MarkingSequence::next_placed() const {
+  for (int k = next_; k < job_.defect_count; ++k)
+    if (placed(order_[static_cast<std::size_t>(k)])) return k;
+  return -1;
+}
+
 void MarkingSequence::next_defect(Nanos now) {
   // A defect the inter-calibration does not yet place surely enough waits behind the next
   // one it does (the order otherwise kept): the arm's time goes to what it can spray now,
   // and the refits meanwhile may place the other.
-  for (int k = next_; k < job_.defect_count; ++k)
-    if (placed(order_[static_cast<std::size_t>(k)])) {
-      std::rotate(order_.begin() + next_, order_.begin() + k, order_.begin() + k + 1);
-      break;
-    }
+  if (const int k = next_placed(); k >= 0)
+    std::rotate(order_.begin() + next_, order_.begin() + k, order_.begin() + k + 1);
   while (next_ < job_.defect_count) {
     defect_ = order_[static_cast<std::size_t>(next_++)];
     auto& r = result_.defects[static_cast<std::size_t>(defect_)];
@@ -499,14 +502,11 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
   // Placed surely enough by the inter-calibration in use; a refit with more MFs may
   // still come (refine_intercalibration) while the arm follows.
   const bool placed_now = r.placement_sigma <= params_.intercalibration.max_placement_sigma;
-  if (!placed_now) {
+  if (!placed_now && next_placed() >= 0) {
     // Another defect placed meanwhile goes first; this one follows it (next_defect).
-    for (int k = next_; k < job_.defect_count; ++k)
-      if (placed(order_[static_cast<std::size_t>(k)])) {
-        --next_;  // order_[next_] is this defect again
-        next_defect(now);
-        return;
-      }
+    --next_;  // order_[next_] is this defect again
+    next_defect(now);
+    return;
   }
   if (now > deadline_) {
     const Eigen::Isometry3d X = nozzle_in_base(predictor_.predict(now), defect_);

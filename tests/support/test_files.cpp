@@ -54,6 +54,21 @@ CommandResult run_command(const std::string& command) {
   return r;
 }
 
+void replace_once(std::string& text, const std::string& from, const std::string& to) {
+  const auto at = text.find(from);
+  INFO("looking for: " << from);
+  REQUIRE(at != std::string::npos);
+  text.replace(at, from.size(), to);
+}
+
+std::string example_config_text(const std::vector<std::pair<std::string, std::string>>& edits) {
+  std::string text = read_file(source_path("config/cell.example.yaml"));
+  for (const auto& [from, to] : edits) replace_once(text, from, to);
+  for (const std::string file : {"calibration/marking_stereo.yaml", "calibration/base.yaml", "panels/door.yaml", "panels/fender.yaml"})
+    replace_once(text, " " + file, " " + source_path("config/" + file));
+  return text;
+}
+
 double json_number(const std::string& json, const std::string& section, const std::string& key) {
   const auto s = json.find("\"" + section + "\"");
   REQUIRE(s != std::string::npos);

@@ -2,6 +2,8 @@
 // Temporary files and folders for tests, removed when the object goes.
 #include <filesystem>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace markcell::test {
 
@@ -30,5 +32,12 @@ CommandResult run_command(const std::string& command);
 // The number after "KEY": in a JSON text, the first one after "SECTION" (the rig's
 // report.json); a test failure when either is missing.
 double json_number(const std::string& json, const std::string& section, const std::string& key);
+
+// Replaces the first `from` in `text` by `to`; a test failure naming `from` when absent.
+void replace_once(std::string& text, const std::string& from, const std::string& to);
+
+// config/cell.example.yaml with each `from` replaced by its `to`, and its calibration and
+// panel files named by absolute paths (so that the text works from any folder).
+std::string example_config_text(const std::vector<std::pair<std::string, std::string>>& edits);
 
 }  // namespace markcell::test

@@ -233,6 +233,8 @@ class MarkingSequence {
   bool every_defect_placed() const;
   // Usable, not skipped, and placed by the inter-calibration within the limit.
   bool placed(int defect) const;
+  // The first position from next_ in order_ holding a placed defect; -1: none.
+  int next_placed() const;
   Nanos latest_start(Nanos now);
   void panel_without_record(Nanos now);
   void record_without_panel(Nanos now);

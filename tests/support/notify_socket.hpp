@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -25,12 +26,18 @@ class NotifySocket {
     REQUIRE(bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0);
     timeval tv{0, 20'000};
     setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
+    // The kernel stamps each datagram as it is sent (AF_UNIX stamps at sendmsg): pacing is
+    // judged by when the sender sent, not by when this reader, maybe descheduled on a
+    // loaded machine, got round to reading two queued messages.
+    const int on = 1;
+    REQUIRE(setsockopt(fd_, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof(on)) == 0);
   }
   ~NotifySocket() { close(fd_); }
   NotifySocket(const NotifySocket&) = delete;
   NotifySocket& operator=(const NotifySocket&) = delete;
   struct Message {
-    Nanos time;
+    Nanos time;  // monotonic, when read
+    Nanos sent;  // CLOCK_REALTIME, when sent (kernel's stamp): only differences are meaningful
     std::string text;
   };
   // Collects every datagram until `until()` holds or `timeout` passes; returns until().
@@ -39,8 +46,24 @@ class NotifySocket {
     const Nanos end = monotonic_now() + timeout;
     char buf[512];
     while (monotonic_now() < end && !until()) {
-      const auto n = recv(fd_, buf, sizeof(buf), 0);
-      if (n > 0) messages.push_back({monotonic_now(), std::string(buf, static_cast<std::size_t>(n))});
+      iovec iov{buf, sizeof(buf)};
+      alignas(cmsghdr) char control[CMSG_SPACE(sizeof(timespec))];
+      msghdr msg{};
+      msg.msg_iov = &iov;
+      msg.msg_iovlen = 1;
+      msg.msg_control = control;
+      msg.msg_controllen = sizeof(control);
+      const auto n = recvmsg(fd_, &msg, 0);
+      if (n <= 0) continue;
+      Nanos sent = -1;
+      for (cmsghdr* c = CMSG_FIRSTHDR(&msg); c != nullptr; c = CMSG_NXTHDR(&msg, c)) {
+        if (c->cmsg_level != SOL_SOCKET || c->cmsg_type != SCM_TIMESTAMPNS) continue;
+        timespec ts{};
+        std::memcpy(&ts, CMSG_DATA(c), sizeof(ts));
+        sent = static_cast<Nanos>(ts.tv_sec) * kNanosPerSecond + ts.tv_nsec;
+      }
+      REQUIRE(sent >= 0);  // SO_TIMESTAMPNS was set: every datagram carries its stamp
+      messages.push_back({monotonic_now(), sent, std::string(buf, static_cast<std::size_t>(n))});
     }
     return until();
   }

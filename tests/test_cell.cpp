@@ -35,7 +35,7 @@ TEST_CASE("the simulated cell brings the arm link up over the simulated CAN arm"
   CHECK_FALSE(s.line(LineRole::kPlcFault));
 }
 
-TEST_CASE("the valve's pulse record is a ring: pulse 300 is counted and readable, the oldest overwritten") {
+TEST_CASE("the valve's pulse record and the nozzle's are rings: pulse 300 is counted and readable, the oldest overwritten") {
   // A cell sprays for years: the count never stops, the newest kHistory pulses are kept.
   SimCell s;
   constexpr std::uint64_t kPulses = control::SprayValve::kHistory + 44;
@@ -52,6 +52,12 @@ TEST_CASE("the valve's pulse record is a ring: pulse 300 is counted and readable
   // The oldest kept is pulse 44; pulse 0's slot now holds pulse 256.
   CHECK(s.cell.spray_valve().pulse(44).requested_start == millis(100) + 44 * millis(20));
   CHECK(s.cell.spray_valve().pulse(0).requested_start == millis(100) + 256 * millis(20));
+  // The simulated world saw every opening at the nozzle, at its tick, and keeps the newest.
+  const NozzleWitness& nozzle = *s.cell.sim_nozzle();
+  CHECK(nozzle.total() == kPulses);
+  REQUIRE(nozzle.kept() == NozzleWitness::kCapacity);
+  for (std::size_t i = nozzle.total() - nozzle.kept(); i < nozzle.total(); ++i)
+    CHECK(nozzle.spray(i).time == millis(100) + static_cast<Nanos>(i) * millis(20));
 }
 
 TEST_CASE("a valve pulse opens and closes on the executive's ticks") {

@@ -385,7 +385,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   int sprayed = 0;
   for (int i = 0; i < result.defect_count; ++i) sprayed += result.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
   CHECK(sprayed == 3);
-  CHECK(cell.sim_spray_count() == 3);
+  CHECK(cell.sim_nozzle()->kept() == 3);
   CHECK(allocations == 0);
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
 }
@@ -543,7 +543,7 @@ TEST_CASE("a panel without an inspection record: PLC fault after the record time
   CHECK(r.panel_id.view() == "(no record)");
   CHECK(r.defect_count == 0);
   CHECK(cell.sim_arm()->model().tool().position == home);
-  CHECK(cell.sim_spray_count() == 0);
+  CHECK(cell.sim_nozzle()->kept() == 0);
   // The panel leaves: the PLC's fault line drops, ready for the next panel.
   cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), false);
   clock.run_until(t += millis(100));
@@ -580,7 +580,7 @@ TEST_CASE("a record without a panel expires: its result a fault with the reason,
   CHECK(r.reason.view() == "inspection record expired: its panel never came");
   REQUIRE(r.defect_count == 3);
   for (int i = 0; i < 3; ++i) CHECK(r.defects[static_cast<std::size_t>(i)].skipped == control::SkipReason::kNoPanel);
-  CHECK(cell.sim_spray_count() == 0);
+  CHECK(cell.sim_nozzle()->kept() == 0);
   clock.run_until(t += seconds(5));
   CHECK(line(host::LineRole::kPlcFault));  // no panel to release it: held
   CHECK_FALSE(line(host::LineRole::kPlcDone));
@@ -637,7 +637,7 @@ TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, 
   std::size_t allocations = 0;
   for (int k = 0; k < kPanels; ++k) {
     const Nanos epoch = clock.global_now();
-    const std::size_t sprays_before = cell.sim_spray_total();
+    const std::size_t sprays_before = cell.sim_nozzle()->total();
     job.panel_id.assign(("soak-" + std::to_string(k)).c_str());
     {
       test::AllocationGuard guard;
@@ -658,8 +658,8 @@ TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, 
     const control::PanelResult& r = marking.current();
     faults += r.fault ? 1 : 0;
     std::vector<host::rig::Spray> sprays;
-    for (std::size_t i = sprays_before; i < cell.sim_spray_total(); ++i)
-      sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_spray(i).tool)});
+    for (std::size_t i = sprays_before; i < cell.sim_nozzle()->total(); ++i)
+      sprays.push_back({cell.sim_nozzle()->spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_nozzle()->spray(i).tool)});
     const auto score = host::rig::score_sprays(
         shape, [&](Nanos t) { return truth_at(t - epoch + time_base); }, defects, sprays, {}, 0.010);
     marked += score.marked;

@@ -77,13 +77,7 @@ control::TaskResult Cell::SimWorld::task(control::TaskContext& ctx, void* self) 
   w->arm->poll(ctx.now());
   if (w->overlay != nullptr) w->overlay->publish(w->arm->model().tool());
   // Runs after spray_valve in the tick: a valve that opened this tick is open now.
-  const bool open = w->valve != nullptr && w->valve->open();
-  if (open && !w->valve_was_open) {
-    w->sprays[w->spray_count % w->sprays.size()] = SimSpray{ctx.now(), w->arm->model().tool()};
-    ++w->spray_count;
-  }
-  if (open != w->valve_was_open) w->log.valve(ctx.now(), open);
-  w->valve_was_open = open;
+  w->nozzle.observe(ctx.now(), w->valve != nullptr && w->valve->open(), w->arm->model().tool(), w->log);
   return control::TaskResult::kOk;
 }
 

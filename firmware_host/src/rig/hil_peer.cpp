@@ -16,7 +16,6 @@ namespace markcell::host::rig {
 namespace {
 
 constexpr Nanos kPeriod = millis(1);
-constexpr std::size_t kSprayCapacity = 1024;
 constexpr std::size_t kLogCapacity = std::size_t{1} << 18;
 
 drivers::SocketCanConfig peer_socket(const CanConfig& can) {
@@ -45,7 +44,6 @@ HilPeer::HilPeer(const CellConfig& config, std::string gpio_sim_dir, const std::
       arm_(bus_, static_cast<std::uint8_t>(config.arm.can.node_id), sim_arm_limits(config.arm), millis(10),
            config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout, config.arm.can.fd) {
   log_.reserve(kLogCapacity);
-  sprays_.reserve(kSprayCapacity);
 }
 
 HilPeer::~HilPeer() { stop(); }
@@ -96,7 +94,6 @@ void HilPeer::stop() noexcept {
 
 void HilPeer::run() noexcept {
   const bool active_low = config_.gpio.lines[static_cast<std::size_t>(LineRole::kSprayValve)].active_low;
-  bool was_open = false;
   Nanos next = monotonic_now();
   while (!stop_.load(std::memory_order_acquire)) {
     next += kPeriod;
@@ -114,13 +111,7 @@ void HilPeer::run() noexcept {
       error_ = attribute(LineRole::kSprayValve, "value") + ": cannot read the valve's level (" + std::strerror(errno) + ")";
       return;
     }
-    const bool open = (level[0] == '1') != active_low;
-    if (open && !was_open) {
-      if (sprays_.size() < sprays_.capacity()) sprays_.push_back(SimSpray{now, arm_.model().tool()});
-      ++spray_total_;
-    }
-    if (open != was_open) log_.valve(now, open);
-    was_open = open;
+    nozzle_.observe(now, (level[0] == '1') != active_low, arm_.model().tool(), log_);
   }
 }
 

@@ -171,9 +171,6 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     run.peer_late_ticks = peer->late_ticks();
     if (!peer->error().empty()) run.faults.push_back("rig peer: " + peer->error());
     if (peer->priority_refused()) run.faults.push_back("rig peer: SCHED_FIFO refused, its thread ran at normal priority");
-    if (peer->spray_total() > peer->sprays().size())
-      run.faults.push_back("rig peer: " + std::to_string(peer->spray_total() - peer->sprays().size()) +
-                           " valve openings past the first " + std::to_string(peer->sprays().size()) + " not scored");
   }
   for (std::size_t i = 0; i < cell.executive().spec().tasks.size(); ++i) {
     run.deadline_misses += cell.executive().task_stats(static_cast<int>(i)).deadline_misses.load();
@@ -211,11 +208,15 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   };
   std::vector<Spray> sprays;
   const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
-  if (peer)
-    for (const SimSpray& s : peer->sprays()) sprays.push_back({s.time, X_CamR_Base * control::to_isometry(s.tool)});
-  else
-    for (std::size_t i = cell.sim_spray_total() - cell.sim_spray_count(); i < cell.sim_spray_total(); ++i)
-      sprays.push_back({cell.sim_spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_spray(i).tool)});
+  // What the simulated world saw at the nozzle: the peer's behind real devices, else the cell's.
+  if (const NozzleWitness* nozzle = peer ? &peer->nozzle() : cell.sim_nozzle(); nozzle != nullptr) {
+    if (nozzle->total() > nozzle->kept())
+      run.faults.push_back("rig: the oldest " + std::to_string(nozzle->total() - nozzle->kept()) + " of " +
+                           std::to_string(nozzle->total()) + " valve openings not scored (the newest " +
+                           std::to_string(nozzle->kept()) + " kept)");
+    for (std::size_t i = nozzle->total() - nozzle->kept(); i < nozzle->total(); ++i)
+      sprays.push_back({nozzle->spray(i).time, X_CamR_Base * control::to_isometry(nozzle->spray(i).tool)});
+  }
   std::vector<SkippedDefect> skipped;
   for (int i = 0; i < run.panel.defect_count; ++i) {
     const auto& d = run.panel.defects[static_cast<std::size_t>(i)];

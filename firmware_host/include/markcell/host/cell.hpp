@@ -1,6 +1,8 @@
 #pragma once
 // The cell assembled from its configuration: clock, fault log, safe stop, devices and the
 // executive with every configured task bound to the code that provides it.
+#include <algorithm>
+#include <array>
 #include <memory>
 #include <optional>
 #include <string>
@@ -51,6 +53,29 @@ struct SimSpray {
   drivers::ToolPose tool;  // X_Base_Tool as the arm's mechanics had it, not as reported
 };
 
+// The simulated world's view of the nozzle, one tick at a time: each opening of the valve
+// with the arm's true tool pose then, and each edge of the valve into the command log. The
+// same for the world inside the cell (simulated time) and the rig's peer behind the real
+// devices (rig::HilPeer). Every opening is counted, the newest kCapacity kept: spray(i)
+// for i in [total() - kept(), total()), oldest first. Allocates nothing.
+class NozzleWitness {
+ public:
+  static constexpr std::size_t kCapacity = 256;
+  void observe(Nanos now, bool valve_open, const drivers::ToolPose& tool, CommandLog& log) noexcept {
+    if (valve_open && !was_open_) sprays_[total_++ % kCapacity] = SimSpray{now, tool};
+    if (valve_open != was_open_) log.valve(now, valve_open);
+    was_open_ = valve_open;
+  }
+  std::size_t total() const { return total_; }
+  std::size_t kept() const { return std::min(total_, kCapacity); }
+  const SimSpray& spray(std::size_t i) const { return sprays_[i % kCapacity]; }
+
+ private:
+  bool was_open_ = false;
+  std::array<SimSpray, kCapacity> sprays_{};
+  std::size_t total_ = 0;
+};
+
 // The vision task: frames from the source, the tracker of the panel type the marking
 // sequence asked for, poses out to the control lane.
 struct VisionStats {
@@ -94,12 +119,8 @@ class Cell {
   control::ArmSupervision& arm_supervision() { return *arm_supervision_; }
   // The simulated arm (null unless devices.arm.transport is simulated).
   drivers::SimCanArm* sim_arm() { return sim_world_ ? sim_world_->arm.get() : nullptr; }
-  // Valve openings seen by the simulated world (simulated arm only), oldest first:
-  // all are counted, the newest 256 kept. sim_spray(i) for i in
-  // [sim_spray_total() - sim_spray_count(), sim_spray_total()).
-  std::size_t sim_spray_total() const { return sim_world_ ? sim_world_->spray_count : 0; }
-  std::size_t sim_spray_count() const { return sim_world_ ? std::min(sim_world_->spray_count, sim_world_->sprays.size()) : 0; }
-  const SimSpray& sim_spray(std::size_t i) const { return sim_world_->sprays[i % sim_world_->sprays.size()]; }
+  // Valve openings seen by the simulated world (null unless the arm is simulated).
+  const NozzleWitness* sim_nozzle() const { return sim_world_ ? &sim_world_->nozzle : nullptr; }
   // The rig's command log: every CAN frame the controller sends to the simulated arm and
   // every valve opening and closing, with simulated times (candump -L style lines).
   // Storage for `capacity` entries is taken here, before start(); a full log counts
@@ -137,9 +158,7 @@ class Cell {
     std::unique_ptr<drivers::SimCanArm> arm;
     control::SprayValve* valve = nullptr;
     rig::ArmOverlay* overlay = nullptr;  // the arm's pose to the frames' painter
-    bool valve_was_open = false;
-    std::array<SimSpray, 256> sprays{};
-    std::size_t spray_count = 0;
+    NozzleWitness nozzle;
     CommandLog log;  // capacity reserved once, by enable_command_log
     static control::TaskResult task(control::TaskContext& ctx, void* self);
   };

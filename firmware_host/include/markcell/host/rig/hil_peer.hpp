@@ -43,9 +43,8 @@ class HilPeer {
   // The PLC drives an input to a logical level (active_low applied). Throws naming the file.
   void drive(LineRole role, bool logical);
 
-  // After stop(): each valve opening with the arm's tool pose then (the first 1024), ...
-  const std::vector<SimSpray>& sprays() const { return sprays_; }
-  std::size_t spray_total() const { return spray_total_; }
+  // After stop(): each valve opening with the arm's tool pose then, ...
+  const NozzleWitness& nozzle() const { return nozzle_; }
   // ... the commands the controller sent and the valve's edges, times from `epoch`, ...
   std::string command_log_text(Nanos epoch) const { return log_.text(epoch); }
   // ... ticks that began more than a period late, whether the priority was refused, and
@@ -82,8 +81,7 @@ class HilPeer {
   int valve_fd_ = -1;
   std::thread thread_;
   std::atomic<bool> stop_{false};
-  std::vector<SimSpray> sprays_;
-  std::size_t spray_total_ = 0;
+  NozzleWitness nozzle_;
   std::uint64_t late_ticks_ = 0;
   bool priority_refused_ = false;
   std::string error_;

@@ -309,7 +309,7 @@ TEST_CASE("inspection records: every bad field is rejected with its file, line a
   }
 }
 
-TEST_CASE("a record that does not match the panel: inter-calibration rejected, nothing sprayed, PLC fault, reason recorded") {
+TEST_CASE("a record that does not match the panel: inter-calibration rejected (searched again with the arm home), nothing sprayed, PLC fault, reason recorded") {
   test::TempDir dir;
   const auto rec = dir.path() / "recording";
   std::filesystem::copy(sim_dir() + "/recording", rec, std::filesystem::copy_options::recursive);
@@ -358,6 +358,24 @@ TEST_CASE("a record that does not match the panel: inter-calibration rejected, n
   CHECK(json_number(json, "defects", "skipped") == 3);
   CHECK(json.find("inter-calibration failed or above its limit") != std::string::npos);
   CHECK(read_file(out + "/commands.log").find("valve open") == std::string::npos);
+
+  // Each failed search is made again with the arm at home; an arm that cannot say it is home
+  // within home_timeout (here its confirmation must postdate a 150 ms command lead, with
+  // 0.1 s allowed) ends the panel at once, naming the arm, not the search; the arm's
+  // second miss, at the panel's end, comes after that reason.
+  const std::string no_home = (dir.path() / "no-home").string();
+  const std::string json2 = replay_report(
+      rec.string(),
+      " --config " + example_config_with(dir, {{"  command_lead_ms: 35 ", "  command_lead_ms: 150 "},
+                                               {"  home_timeout_s: 10\n", "  home_timeout_s: 0.1\n"}}),
+      no_home);
+  INFO(json2);
+  CHECK(json2.find("\"reason\": \"arm did not reach home in time to search again for the macro-features; then the "
+                   "arm did not reach home in time\"") != std::string::npos);
+  CHECK(json2.find("\"status\": \"macro-features of the record and of the panel disagree\"") != std::string::npos);
+  CHECK(json_number(json2, "defects", "skipped") == 3);
+  CHECK(json2.find("inter-calibration failed or above its limit") != std::string::npos);
+  CHECK(read_file(no_home + "/commands.log").find("valve open") == std::string::npos);
 }
 
 TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC) allocates nothing once started") {

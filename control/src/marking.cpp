@@ -95,6 +95,9 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
     }
     case MarkingState::kAcquire:
       if (!plc.panel_present) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
+      else if (now > deadline_ && search_when_home_)
+        fail_panel(now, "arm did not reach home in time to search again for the macro-features",
+                   SkipReason::kIntercalibration);
       else if (now > deadline_) fail_panel(now, "macro-features not found in time", SkipReason::kNotFound);
       else if (search_when_home_) {
         // The new search waits for the arm at home: in the view, its outline crossing the
@@ -138,8 +141,14 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
       const auto& s = arm_.state();
       if ((s.flags & drivers::kHomed) != 0 && s.received > home_sent_at_ + params_.command_lead) finish_panel(now);
       else if (now > deadline_) {
+        // A panel that failed before keeps that reason first: it is why the arm went home.
+        if (result_.fault) {
+          const FixedString<119> first = result_.reason;
+          result_.reason.format("%s; then the arm did not reach home in time", first.c_str());
+        } else {
+          result_.reason.assign("arm did not reach home in time");
+        }
         result_.fault = true;
-        result_.reason.assign("arm did not reach home in time");
         finish_panel(now);
       }
       break;
@@ -220,7 +229,7 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
   if (e.reference_serial != intercal_serial_) {
     // A new P (the first search, or a re-search after the panel was lost): pair its MFs
     // with the record again; the tool poses live in P.
-    if (!intercalibrate_panel(e) || !marking()) return;
+    if (!intercalibrate_panel(e, now) || !marking()) return;
   } else {
     refine_intercalibration(e);
   }
@@ -346,7 +355,7 @@ void MarkingSequence::hold(Nanos now, int mfs_in_view) {
   if (every_defect_placed() || now >= hold_until_ || hold_fewer_mfs_ >= 3) next_defect(now);
 }
 
-bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
+bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e, Nanos now) {
   const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
   if (panel_frame_count_ < kPanelFrameLog) {
     PanelFrameRecord& frame = panel_frame_log_[panel_frame_count_++];
@@ -362,6 +371,7 @@ bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
     // A search that found corners the record does not support (a person or the arm in
     // front of the panel, taken for MFs) is made again, a few times; a record that is not
     // this panel's fails every time. (Not with a pulse in flight: its result comes first.)
+    result_.intercalibration = fit;  // the latest fit, until one passes
     if (++intercal_failures_ < kIntercalibrationAttempts && state_ != MarkingState::kSpraying) {
       serial_at_reset_ = latest_serial_;  // this P's poses no longer count
       if (state_ == MarkingState::kApproach) --next_;  // the defect under way is taken up again
@@ -369,16 +379,15 @@ bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e) {
       settled_since_ = -1;
       drivers::ArmCommand home;
       home.mode = drivers::ArmMode::kHome;
-      home.time = e.time;
-      arm_.send(home, e.time);
-      home_sent_at_ = e.time;
+      home.time = now;
+      arm_.send(home, now);
+      home_sent_at_ = now;
       search_when_home_ = true;
-      deadline_ = e.time + params_.home_timeout + params_.acquire_timeout;
+      deadline_ = now + params_.home_timeout;  // then acquire_timeout for the search
       state_ = MarkingState::kAcquire;
       return false;
     }
-    result_.intercalibration = fit;
-    fail_panel(e.time, to_string(fit.status), SkipReason::kIntercalibration);
+    fail_panel(now, to_string(fit.status), SkipReason::kIntercalibration);
     return false;
   }
   result_.intercalibration = fit;

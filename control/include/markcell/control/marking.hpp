@@ -215,8 +215,9 @@ class MarkingSequence {
  private:
   void on_estimate(const vision::PoseEstimate& e, Nanos now);
   void start_panel(Nanos now);
-  // False: no usable P (the panel failed, or a new search was asked for).
-  bool intercalibrate_panel(const vision::PoseEstimate& e);
+  // False: no usable P (the panel failed, or a new search was asked for). `now`: the
+  // control lane's time (e.time is the frame's, a vision latency earlier).
+  bool intercalibrate_panel(const vision::PoseEstimate& e, Nanos now);
   void request_search();
   void refine_intercalibration(const vision::PoseEstimate& e);
   void place_tools(const Intercalibration& ic);

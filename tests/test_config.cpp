@@ -187,6 +187,22 @@ TEST_CASE_METHOD(Fixture, "simulated devices and the tasks that run them go toge
   CHECK(m[0] == file() + ":13:16: executive.tasks.sim_world: no device is simulated: remove sim_world");
 }
 
+TEST_CASE_METHOD(Fixture, "a serial arm's STATE timeout: 150 ms unless given, read in milliseconds, checked") {
+  const auto serial = [&](const std::string& extra) {
+    return replace(replace(kValid, "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n", ""),
+                   "transport: simulated, limits",
+                   "transport: serial, serial: {device: /dev/ttyS1, baud: 115200, ack_timeout_ms: 20, retries: 3" + extra +
+                       "}, limits");
+  };
+  REQUIRE(check(serial("")).empty());
+  CHECK(load_config(file(), task_catalog()).arm.serial.state_timeout == millis(150));
+  REQUIRE(check(serial(", state_timeout_ms: 400")).empty());
+  CHECK(load_config(file(), task_catalog()).arm.serial.state_timeout == millis(400));
+  const auto m = messages(check(serial(", state_timeout_ms: 0")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0].find("devices.arm.serial.state_timeout_ms: expected an integer in [1, 65535], got 0") != std::string::npos);
+}
+
 TEST_CASE_METHOD(Fixture, "spray pulse and arm limits are checked against each other") {
   auto m = messages(check(replace(replace(kValid, "pulse_ms: 80", "pulse_ms: 800"), "home_m: [0.3, 0, 0.6]", "home_m: [2, 0, 0.6]")));
   REQUIRE(m.size() == 2);

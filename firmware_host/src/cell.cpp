@@ -67,7 +67,7 @@ std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::uniqu
     }
     case ArmTransport::kSerial:
       return std::make_unique<drivers::SerialArmLink>(drivers::SerialArmLinkConfig{
-          arm.serial.device, arm.serial.baud, arm.serial.ack_timeout, arm.serial.retries, arm.can.heartbeat_timeout});
+          arm.serial.device, arm.serial.baud, arm.serial.ack_timeout, arm.serial.retries, arm.serial.state_timeout});
   }
   throw std::logic_error("make_arm_link: the simulated arm lives in the cell's simulated world");
 }

@@ -467,7 +467,7 @@ void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
               "heartbeat_timeout_ms " + std::to_string(hbt) + " must exceed heartbeat_ms " + std::to_string(hb));
   }
   if (const auto s = r.child(node, P, "serial", a.transport == ArmTransport::kSerial);
-      s && r.map(*s, P + ".serial", {"device", "baud", "ack_timeout_ms", "retries"})) {
+      s && r.map(*s, P + ".serial", {"device", "baud", "ack_timeout_ms", "retries", "state_timeout_ms"})) {
     const std::string SP = P + ".serial";
     r.text(*s, SP, "device", a.serial.device);
     r.integer(*s, SP, "baud", a.serial.baud, 1, 4'000'000);
@@ -480,6 +480,9 @@ void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
     r.integer(*s, SP, "ack_timeout_ms", ack, 1, 10'000);
     a.serial.ack_timeout = millis(ack);
     r.integer(*s, SP, "retries", a.serial.retries, 0, 100);
+    long long state = a.serial.state_timeout / millis(1);
+    r.integer(*s, SP, "state_timeout_ms", state, 1, 65'535, false);
+    a.serial.state_timeout = millis(state);
   }
 }
 

@@ -70,6 +70,7 @@ struct SerialConfig {
   int baud = 115200;
   Nanos ack_timeout = millis(20);
   int retries = 3;
+  Nanos state_timeout = millis(150);  // the arm's STATE (its heartbeat) silent this long: link lost
 };
 
 struct ArmLimitsConfig {

@@ -2,6 +2,7 @@
 // over the simulated CAN arm, valve pulses timed by the executive, device faults to the
 // safe stop, and 10,000 cycles of the whole cell with no heap allocation.
 #include <catch2/catch.hpp>
+#include <cstdio>
 
 #include "alloc_guard.hpp"
 #include "markcell/host/cell.hpp"
@@ -166,4 +167,42 @@ TEST_CASE("the camera_trigger task: a rising edge on the trigger line every othe
   for (std::size_t i = 0; i < rising.size(); ++i) CHECK(rising[i] == millis(34) * static_cast<Nanos>(i));
   // The line ends low: safe state after the shutdown.
   CHECK_FALSE(cell.sim_gpio()->physical(static_cast<int>(LineRole::kCameraTrigger)));
+}
+
+TEST_CASE("the command log: a CAN frame, a serial frame off the wire, the valve's edges, and what a full log could not keep") {
+  CommandLog log;
+  log.reserve(4);
+  drivers::CanFrame can;
+  can.id = 0x202;
+  can.len = 3;
+  can.data[0] = 0x01, can.data[1] = 0xAB, can.data[2] = 0xFF;
+  log.frame(millis(1500), can);
+  // A command as the controller puts it on the line, decoded as the rig's arm decodes it.
+  drivers::ArmCommand command;
+  command.mode = drivers::ArmMode::kMove;
+  command.time = seconds(2);
+  command.target.position = {0.5, -0.25, 0.4};
+  std::array<std::uint8_t, drivers::serial::kMaxFrame> wire{};
+  const std::size_t size = drivers::serial::encode_command(command, 0x2A, wire);
+  drivers::serial::Decoder decoder;
+  REQUIRE(decoder.push(std::span<const std::uint8_t>(wire.data(), size)) == size);
+  drivers::serial::Frame frame;
+  REQUIRE(decoder.next(frame) == drivers::serial::Decoder::Result::kFrame);
+  log.frame(millis(2250), frame);
+  log.valve(seconds(3), true);
+  log.valve(seconds(3) + 200, false);
+  log.valve(seconds(4), true);  // a fifth entry: not kept, counted
+  // The serial line's payload is the wire's bytes between the header and the CRC.
+  std::string payload;
+  char hex[3];
+  for (std::size_t i = drivers::serial::kHeader; i < size - 2; ++i) {
+    std::snprintf(hex, sizeof hex, "%02X", wire[i]);
+    payload += hex;
+  }
+  REQUIRE(payload.size() == 2 * drivers::serial::kCommandSize);
+  CHECK(log.text(seconds(1)) == "(0.500000000) can 202#01ABFF\n"
+                                "(1.250000000) serial 01#2A#" + payload + "\n"
+                                "(2.000000000) valve open\n"
+                                "(2.000000200) valve close\n"
+                                "# 1 entries not kept: the log was full\n");
 }

@@ -35,6 +35,7 @@
 #include "markcell/drivers/watchdog_device.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "socat_pair.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -456,19 +457,30 @@ std::string real_device_config() {
 
 // The rig's end-to-end replay on the real devices: a recording made on the host (CTest's
 // realkernel_replay_recording, `markcell sim paper-door`) replayed in real time through
-// the cell on its libgpiod lines (gpio-sim) and its SocketCAN arm link (vcan0), the rig's
-// simulated arm and PLC behind them (host/rig/hil_peer.hpp), and scored as on the host.
-// The markcell run is the optimised build the cell ships as (MARKCELL_REPLAY_BINARY):
+// the cell on its libgpiod lines (gpio-sim) and its arm link (SocketCAN on vcan0, or a
+// serial line: a socat pty pair), the rig's simulated arm and PLC behind them
+// (host/rig/hil_peer.hpp), and scored as on the host.
+// The recording is made with the release markcell, and the replay runs it too: in the guest
 // the sanitizers' 3-5x on top of emulation leave the vision lane a frame a second.
-// Hidden from a plain run: CTest's realkernel_replay runs it with both variables set.
-TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every ding marked, as on the host", "[.][replay]") {
+// Hidden from a plain run: CTest's realkernel_replay (CAN) and realkernel_replay_serial run
+// them with both variables set.
+namespace {
+
+struct RealReplay {
+  std::string report;        // report.json
+  std::string command_log;   // the rig peer's: the controller's frames to the arm, the valve's edges
+};
+
+// Replays with `config_text` (and `extra_args`), checks what any arm link must show, and
+// returns what the run wrote. `devices`: how the report must name the cell's devices.
+RealReplay replay_on_real_devices(const test::TempDir& tmp, const std::string& config_text, const std::string& extra_args,
+                                  const std::string& devices) {
   const std::string dir = env("MARKCELL_REPLAY_DIR"), markcell = env("MARKCELL_REPLAY_BINARY");
   INFO("MARKCELL_REPLAY_DIR: the folder `markcell sim` wrote (report.json, recording/); MARKCELL_REPLAY_BINARY: markcell");
   REQUIRE_FALSE(dir.empty());
   REQUIRE_FALSE(markcell.empty());
   const std::string host = test::read_file(dir + "/report.json");
-  test::TempDir tmp;
-  const std::string config = tmp.write("cell.yaml", real_device_config());
+  const std::string config = tmp.write("cell.yaml", config_text);
   // The emulator shares a host whose load it cannot control. The rig's peer thread (1 kHz,
   // trivial work) counts the ticks it began more than a period late: a measure of the
   // guest's CPU, not of the cell (a healthy run here: about 60 over 4 s; one on a host
@@ -492,7 +504,7 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
   for (int attempt = 1; attempt <= 2; ++attempt) {
     out = (tmp.path() / ("out" + std::to_string(attempt))).string();
     r = test::run_command(markcell + " replay " + dir + "/recording --config " + config + " --gpio-sim " +
-                          env("MARKCELL_GPIO_SIM") + " --one-predictor -q --out " + out);
+                          env("MARKCELL_GPIO_SIM") + extra_args + " --one-predictor -q --out " + out);
     INFO(r.output);
     REQUIRE(r.exit_code == 0);
     json = test::read_file(out + "/report.json");
@@ -510,8 +522,7 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
   }
   INFO(r.output);
   INFO(json);
-  CHECK(json.find("\"devices\": \"real: gpio chip " + env("MARKCELL_GPIO_CHIP") + ", CAN " + env("MARKCELL_VCAN")) !=
-        std::string::npos);
+  CHECK(json.find("\"devices\": \"" + devices) != std::string::npos);
   // Scored as on the host, against the recording's truth: the same dings marked.
   const double planned = test::json_number(host, "defects", "planned");
   REQUIRE(planned > 0);
@@ -520,16 +531,53 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
   CHECK(test::json_number(json, "defects", "marked") == planned);
   CHECK(test::json_number(json, "false_sprays", "false_sprays") == 0);
   CHECK(test::json_number(json, "marking_error_mm", "max") < 10.0);  // the control issue's limit
-  // The peer's command log: the controller's set-points to the arm's node over vcan, and
-  // one valve opening (read back from gpio-sim) per spray.
+  // One valve opening (read back from gpio-sim) per spray in the peer's command log.
   const std::string log = test::read_file(out + "/commands.log");
-  const auto node = host::load_config(config, host::task_catalog()).arm.can.node_id;
-  char set_point[16];
-  std::snprintf(set_point, sizeof set_point, ") can %03X#", canopen::kTargetPositionId + static_cast<unsigned>(node));
-  CHECK(log.find(set_point) != std::string::npos);
   std::size_t opens = 0;
   for (auto at = log.find("valve open"); at != std::string::npos; at = log.find("valve open", at + 1)) ++opens;
   CHECK(static_cast<double>(opens) == test::json_number(json, "defects", "sprayed"));
+  // The run's figures in the test's output, for the record.
+  std::printf("guest: replayed on %s: %.0f of %.0f marked, marking error max %.1f mm, %.2f s per defect, the rig peer %.0f "
+              "ticks late\n",
+              devices.c_str(), test::json_number(json, "defects", "marked"), planned,
+              test::json_number(json, "marking_error_mm", "max"),
+              test::json_number(json, "seconds_per_defect", "seconds_per_defect"),
+              test::json_number(json, "peer_late_ticks", "peer_late_ticks"));
+  return {json, log};
+}
+
+}  // namespace
+
+TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every ding marked, as on the host", "[.][replay]") {
+  test::TempDir tmp;
+  const std::string config = real_device_config();
+  const auto run = replay_on_real_devices(tmp, config, "",
+                                          "real: gpio chip " + env("MARKCELL_GPIO_CHIP") + ", CAN " + env("MARKCELL_VCAN"));
+  // The controller's set-points to the arm's node over vcan, as the peer's socket heard them.
+  const auto node = host::load_config(tmp.write("check.yaml", config), host::task_catalog()).arm.can.node_id;
+  char set_point[16];
+  std::snprintf(set_point, sizeof set_point, ") can %03X#", canopen::kTargetPositionId + static_cast<unsigned>(node));
+  CHECK(run.command_log.find(set_point) != std::string::npos);
+}
+
+TEST_CASE("a rig recording replayed in real time on gpio-sim and a serial line: every ding marked, as on the host",
+          "[.][replay-serial]") {
+  // The arm's serial line is a pty pair (socat): the cell's termios port on one end, the
+  // rig's SimSerialArm on the other. Acknowledgements and the arm's STATE heartbeat get an
+  // emulator's timeouts too.
+  test::TempDir tmp;
+  test::SocatPair line(tmp);
+  std::string config = real_device_config();
+  test::replace_once(config, "    transport: can ", "    transport: serial ");
+  test::replace_once(config, "      device: /dev/ttyS1", "      device: " + line.a());
+  test::replace_once(config, "      ack_timeout_ms: 20", "      ack_timeout_ms: 200");
+  test::replace_once(config, "      state_timeout_ms: 150", "      state_timeout_ms: 1000");
+  const auto run = replay_on_real_devices(tmp, config, " --arm-serial-peer " + line.b(),
+                                          "real: gpio chip " + env("MARKCELL_GPIO_CHIP") + ", serial " + line.a() +
+                                              "; rig peer through gpio-sim " + env("MARKCELL_GPIO_SIM") + " and serial " +
+                                              line.b());
+  // The controller's commands as the rig's arm decoded them off the line (type 01).
+  CHECK(run.command_log.find(") serial 01#") != std::string::npos);
 }
 
 int main(int argc, char** argv) {

@@ -232,8 +232,30 @@ TEST_CASE("a replay on real devices (--gpio-sim) refuses a configuration of simu
                                " --gpio-sim " + dir.path().string() + " --out " + (dir.path() / "b").string());
   INFO(arm.output);
   CHECK(arm.exit_code != 0);
-  CHECK(arm.output.find(real_gpio + ": devices.arm.transport must be can") != std::string::npos);
-  CHECK_FALSE(std::filesystem::exists(dir.path() / "a" / "report.json"));
+  CHECK(arm.output.find(real_gpio + ": devices.arm.transport must be can or serial") != std::string::npos);
+  // An arm on a serial line needs the line's other end for the rig's arm, and only then.
+  const std::string no_sim_world =
+      "    sim_world:   {lane: control, period_us: 1000, phase_us: 0, budget_us: 300, on_overrun: log}";
+  const std::string serial = example_config_with(dir, {{"    simulated: true ", "    simulated: false"},
+                                                       {"    transport: simulated ", "    transport: serial "},
+                                                       {no_sim_world, ""}});
+  const auto no_peer = run_command(kMarkcell + " replay " + sim_dir() + "/recording -q --one-predictor --config " + serial +
+                                   " --gpio-sim " + dir.path().string() + " --out " + (dir.path() / "c").string());
+  INFO(no_peer.output);
+  CHECK(no_peer.exit_code != 0);
+  CHECK(no_peer.output.find(serial + ": devices.arm.transport is serial: a replay on real devices needs the serial line's "
+                                     "other end for the rig's arm (--arm-serial-peer DEVICE)") != std::string::npos);
+  const std::string can = example_config_with(dir, {{"    simulated: true ", "    simulated: false"},
+                                                    {"    transport: simulated ", "    transport: can "},
+                                                    {no_sim_world, ""}});
+  const auto stray_peer = run_command(kMarkcell + " replay " + sim_dir() + "/recording -q --one-predictor --config " + can +
+                                      " --gpio-sim " + dir.path().string() + " --arm-serial-peer " + dir.path().string() +
+                                      " --out " + (dir.path() / "d").string());
+  INFO(stray_peer.output);
+  CHECK(stray_peer.exit_code != 0);
+  CHECK(stray_peer.output.find(can + ": --arm-serial-peer is given but devices.arm.transport is not serial") !=
+        std::string::npos);
+  for (const char* out : {"a", "b", "c", "d"}) CHECK_FALSE(std::filesystem::exists(dir.path() / out / "report.json"));
 }
 
 TEST_CASE("defects the inter-calibration cannot place surely enough are followed, never sprayed, skipped with the reason") {

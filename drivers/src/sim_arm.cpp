@@ -98,6 +98,7 @@ void SimSerialArm::poll(Nanos now) {
     decoder_.consume(
         std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)),
         [&](const serial::Frame& frame) {
+          if (tap_ != nullptr) tap_(tap_context_, now, frame);
           ArmCommand command;
           if (serial::decode_command(frame, command) != serial::PayloadError::kOk) {
             ++decode_errors_;

@@ -12,13 +12,15 @@ std::string CommandLog::text(Nanos epoch) const {
     const Nanos a = t < 0 ? -t : t;
     const long long s = a / kNanosPerSecond, ns = a % kNanosPerSecond;
     const char* sign = t < 0 ? "-" : "";
-    if (e.valve >= 0) {
-      std::snprintf(line, sizeof line, "(%s%lld.%09lld) valve %s\n", sign, s, ns, e.valve != 0 ? "open" : "close");
+    if (e.kind == Kind::kValveOpen || e.kind == Kind::kValveClose) {
+      std::snprintf(line, sizeof line, "(%s%lld.%09lld) valve %s\n", sign, s, ns, e.kind == Kind::kValveOpen ? "open" : "close");
       out += line;
       continue;
     }
-    int n = std::snprintf(line, sizeof line, "(%s%lld.%09lld) can %03X#%s", sign, s, ns, static_cast<unsigned>(e.frame.id),
-                          e.frame.fd ? "#0" : "");
+    const unsigned id = static_cast<unsigned>(e.frame.id);
+    int n = e.kind == Kind::kSerial
+                ? std::snprintf(line, sizeof line, "(%s%lld.%09lld) serial %02X#%02X#", sign, s, ns, id >> 8, id & 0xFFu)
+                : std::snprintf(line, sizeof line, "(%s%lld.%09lld) can %03X#%s", sign, s, ns, id, e.frame.fd ? "#0" : "");
     for (std::size_t i = 0; i < e.frame.len && n < 190; ++i)
       n += std::snprintf(line + n, sizeof line - static_cast<std::size_t>(n), "%02X", e.frame.data[i]);
     out += line;

@@ -535,7 +535,7 @@ int main(int argc, char** argv) {
   std::uint64_t sim_seed = 1;
   double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
   bool one_predictor = false, quiet = false, no_arm = false;
-  std::string rig_plc_script, rig_gpio_sim;
+  std::string rig_plc_script, rig_gpio_sim, rig_arm_serial_peer;
   auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
   sim->add_option("SCENARIO", sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
       ->required();
@@ -546,9 +546,15 @@ int main(int argc, char** argv) {
   auto* replay = app.add_subcommand("replay", "Replay a recording through the cell in simulated time; score it when it has ground truth");
   replay->add_option("RECORDING", replay_recording, "Recording folder (vision/RECORDING.md)")->required()->check(CLI::ExistingDirectory);
   replay->add_option("--gpio-sim", rig_gpio_sim,
-                     "Replay in real time on the configured real devices (libgpiod chip, CAN arm link): the rig's PLC and valve "
-                     "through this gpio-sim chip's sysfs folder, its simulated arm a node on the CAN interface")
+                     "Replay in real time on the configured real devices (libgpiod chip, CAN or serial arm link): the rig's "
+                     "PLC and valve through this gpio-sim chip's sysfs folder, its simulated arm a node on the CAN interface "
+                     "or on the serial line's other end (--arm-serial-peer)")
       ->check(CLI::ExistingDirectory);
+  replay->add_option("--arm-serial-peer", rig_arm_serial_peer,
+                     "With --gpio-sim and an arm on a serial line: the line's other end, where the rig's arm answers "
+                     "(a second port on a null-modem cable, or socat's other pty)")
+      ->needs("--gpio-sim")
+      ->check(CLI::ExistingPath);
   for (auto* c : {sim, replay}) {
     c->add_option("--config,-c", rig_config, "Cell configuration (YAML)");
     c->add_option("--out,-o", rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
@@ -629,6 +635,7 @@ int main(int argc, char** argv) {
       options.both_predictors = !one_predictor;
       options.draw_arm = !no_arm;
       options.gpio_sim = rig_gpio_sim;
+      options.arm_serial_peer = rig_arm_serial_peer;
       if (!rig_plc_script.empty()) {
         try {
           options.plc_events = load_plc_script(rig_plc_script);

@@ -35,15 +35,28 @@ int HilPeer::TappedBus::receive(std::span<drivers::CanFrame> out, Nanos timeout)
 }
 
 HilPeer::HilPeer(const CellConfig& config, std::string gpio_sim_dir, const std::array<unsigned, kLineRoleCount>& offsets,
-                 int priority)
+                 int priority, std::string arm_serial_peer)
     : config_(config),
       dir_(std::move(gpio_sim_dir)),
       offsets_(offsets),
       priority_(priority),
-      bus_(peer_socket(config.arm.can), log_),
-      arm_(bus_, static_cast<std::uint8_t>(config.arm.can.node_id), sim_arm_limits(config.arm), millis(10),
-           config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout, config.arm.can.fd) {
+      serial_peer_(std::move(arm_serial_peer)) {
   log_.reserve(kLogCapacity);
+  const auto& arm = config.arm;
+  if (arm.transport == ArmTransport::kCan) {
+    bus_.emplace(peer_socket(arm.can), log_);
+    can_arm_.emplace(*bus_, static_cast<std::uint8_t>(arm.can.node_id), sim_arm_limits(arm), millis(10),
+                     arm.can.heartbeat_period, arm.can.heartbeat_timeout, arm.can.fd);
+  } else if (arm.transport == ArmTransport::kSerial) {
+    if (serial_peer_.empty())
+      throw std::invalid_argument(config.file + ": devices.arm.transport is serial: the rig's arm needs the serial line's "
+                                                "other end (--arm-serial-peer DEVICE)");
+    serial_arm_.emplace(sim_arm_limits(arm), millis(10));
+    serial_arm_->set_tap(&HilPeer::tap_serial, this);
+  } else {
+    throw std::invalid_argument(config.file + ": devices.arm.transport is simulated: the rig's peer stands behind real "
+                                              "devices (can or serial)");
+  }
 }
 
 HilPeer::~HilPeer() { stop(); }
@@ -73,8 +86,12 @@ void HilPeer::start() {
   const std::string value = attribute(LineRole::kSprayValve, "value");
   valve_fd_ = ::open(value.c_str(), O_RDONLY | O_CLOEXEC);
   if (valve_fd_ < 0) throw std::system_error(errno, std::generic_category(), value + ": cannot open the valve line's value");
-  bus_.open();
-  arm_.start(monotonic_now());
+  if (can_arm_) {
+    bus_->open();
+    can_arm_->start(monotonic_now());
+  } else {
+    serial_arm_->open(serial_peer_, config_.arm.serial.baud);
+  }
   stop_.store(false, std::memory_order_release);
   thread_ = std::thread([this] { run(); });
   if (priority_ > 0) {
@@ -87,7 +104,8 @@ void HilPeer::start() {
 void HilPeer::stop() noexcept {
   stop_.store(true, std::memory_order_release);
   if (thread_.joinable()) thread_.join();
-  bus_.close();
+  if (bus_) bus_->close();
+  if (serial_arm_) serial_arm_->close();
   if (valve_fd_ >= 0) ::close(valve_fd_);
   valve_fd_ = -1;
 }
@@ -105,13 +123,15 @@ void HilPeer::run() noexcept {
       ++late_ticks_;
       next = now;  // no burst of catch-up ticks after a stall
     }
-    arm_.poll(now);
+    if (can_arm_) can_arm_->poll(now);
+    else serial_arm_->poll(now);
     char level[4] = {};
     if (::pread(valve_fd_, level, sizeof level, 0) <= 0 || (level[0] != '0' && level[0] != '1')) {
       error_ = attribute(LineRole::kSprayValve, "value") + ": cannot read the valve's level (" + std::strerror(errno) + ")";
       return;
     }
-    nozzle_.observe(now, (level[0] == '1') != active_low, arm_.model().tool(), log_);
+    const auto& tool = can_arm_ ? can_arm_->model().tool() : serial_arm_->model().tool();
+    nozzle_.observe(now, (level[0] == '1') != active_low, tool, log_);
   }
 }
 

@@ -53,13 +53,18 @@ bool has_task(const CellConfig& c, const std::string& name) {
 
 // A real-device replay's checks: the configuration must name real devices for the peer to
 // stand behind.
-void check_real_devices(const CellConfig& c) {
+void check_real_devices(const CellConfig& c, const ReplayOptions& options) {
   if (c.gpio.simulated)
     throw std::runtime_error(c.file + ": devices.gpio.simulated is true: a replay on real devices (--gpio-sim) needs the "
                                       "libgpiod chip the gpio-sim lines are on");
-  if (c.arm.transport != ArmTransport::kCan)
-    throw std::runtime_error(c.file + ": devices.arm.transport must be can for a replay on real devices (--gpio-sim): the "
-                                      "rig's simulated arm is a node on the CAN interface");
+  if (c.arm.transport == ArmTransport::kSimulated)
+    throw std::runtime_error(c.file + ": devices.arm.transport must be can or serial for a replay on real devices "
+                                      "(--gpio-sim): the rig's simulated arm stands behind the cell's real arm link");
+  if (c.arm.transport == ArmTransport::kSerial && options.arm_serial_peer.empty())
+    throw std::runtime_error(c.file + ": devices.arm.transport is serial: a replay on real devices needs the serial "
+                                      "line's other end for the rig's arm (--arm-serial-peer DEVICE)");
+  if (c.arm.transport != ArmTransport::kSerial && !options.arm_serial_peer.empty())
+    throw std::runtime_error(c.file + ": --arm-serial-peer is given but devices.arm.transport is not serial");
 }
 
 PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
@@ -87,7 +92,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     for (std::size_t i = 0; i < kLineRoleCount; ++i) offsets[i] = lines->offset(static_cast<int>(i));
     int priority = 0;  // the world runs above every lane of the cell, when they have priorities
     for (const auto& lane : cfg.executive.lanes) priority = std::max(priority, lane.priority > 0 ? std::min(lane.priority + 1, 99) : 0);
-    peer = std::make_unique<HilPeer>(cfg, options.gpio_sim, offsets, priority);
+    peer = std::make_unique<HilPeer>(cfg, options.gpio_sim, offsets, priority, options.arm_serial_peer);
     peer->start();
   } else {
     cell.enable_command_log(std::size_t{1} << 18);
@@ -304,9 +309,12 @@ ReplayReport replay_recording(const CellConfig& config, const std::string& recor
   report.recording = recording;
   report.panel_type = rec.manifest().panel_type;
   if (!options.gpio_sim.empty()) {
-    check_real_devices(config);
-    report.devices = "real: gpio chip " + config.gpio.chip + ", CAN " + config.arm.can.interface + "; rig peer through gpio-sim " +
-                     options.gpio_sim;
+    check_real_devices(config, options);
+    report.devices = "real: gpio chip " + config.gpio.chip +
+                     (config.arm.transport == ArmTransport::kCan ? ", CAN " + config.arm.can.interface
+                                                                 : ", serial " + config.arm.serial.device) +
+                     "; rig peer through gpio-sim " + options.gpio_sim +
+                     (options.arm_serial_peer.empty() ? "" : " and serial " + options.arm_serial_peer);
   }
   std::vector<std::string> kinds{config.marking.predictor};
   if (options.both_predictors) kinds.push_back(config.marking.predictor == "kalman" ? "two-frame" : "kalman");

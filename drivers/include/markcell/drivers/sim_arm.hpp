@@ -66,6 +66,10 @@ class SimSerialArm {
   void poll(Nanos now);
 
   SimArmModel& model() { return model_; }
+  // Every well-formed frame the controller sends, as the arm decodes it (a rig's command
+  // log): called from poll(), so it must not block. Null: none.
+  using FrameTap = void (*)(void* context, Nanos time, const serial::Frame& frame);
+  void set_tap(FrameTap tap, void* context) { tap_ = tap, tap_context_ = context; }
   // Faults to exercise the controller with.
   void set_silent(bool silent) { silent_ = silent; }          // stops the heartbeat (STATE)
   void set_drop_acks(bool drop) { drop_acks_ = drop; }        // never acknowledges
@@ -79,6 +83,8 @@ class SimSerialArm {
   serial::Decoder decoder_;
   Nanos state_period_;
   Nanos next_state_ = 0;
+  FrameTap tap_ = nullptr;
+  void* tap_context_ = nullptr;
   bool silent_ = false;
   bool drop_acks_ = false;
   std::uint64_t commands_ = 0;

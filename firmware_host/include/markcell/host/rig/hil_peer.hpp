@@ -4,7 +4,9 @@
 // the cell (its sim_world task); here it runs outside, behind the kernel's devices, and
 // the cell runs unchanged on its real clock, its libgpiod lines and its SocketCAN link:
 // - the simulated arm (drivers::SimCanArm: the same mechanics and CANopen node as in
-//   simulated time) on a socket of its own on the cell's CAN interface;
+//   simulated time) on a socket of its own on the cell's CAN interface; or, for an arm on
+//   a serial line, drivers::SimSerialArm (the same mechanics) on the line's other end (a
+//   second port with a null-modem cable, or a pty pair made by socat);
 // - the PLC's inputs driven through the gpio-sim chip's `pull` attributes, the valve's
 //   level read from its `value` attribute.
 // A thread of its own at 1 kHz on CLOCK_MONOTONIC (the cell's real clock) moves the arm,
@@ -12,12 +14,14 @@
 // world does: the rig scores these) and keeps the command log.
 #include <array>
 #include <atomic>
+#include <optional>
 #include <span>
 #include <string>
 #include <thread>
 
 #include "markcell/drivers/can_arm_link.hpp"
 #include "markcell/drivers/can_bus.hpp"
+#include "markcell/drivers/sim_arm.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/command_log.hpp"
 #include "markcell/host/config.hpp"
@@ -28,8 +32,9 @@ class HilPeer {
  public:
   // `offsets`: each line role's offset on the chip (as the cell's libgpiod driver found
   // them by name). `priority`: SCHED_FIFO priority of the peer's thread, 0 for normal.
+  // `arm_serial_peer`: the serial line's far end when the arm's transport is serial.
   HilPeer(const CellConfig& config, std::string gpio_sim_dir, const std::array<unsigned, kLineRoleCount>& offsets,
-          int priority);
+          int priority, std::string arm_serial_peer = {});
   ~HilPeer();
   HilPeer(const HilPeer&) = delete;
   HilPeer& operator=(const HilPeer&) = delete;
@@ -69,14 +74,20 @@ class HilPeer {
   };
   std::string attribute(LineRole role, const char* name) const;
   void run() noexcept;
+  static void tap_serial(void* peer, Nanos time, const drivers::serial::Frame& frame) noexcept {
+    static_cast<HilPeer*>(peer)->log_.frame(time, frame);
+  }
 
   const CellConfig& config_;
   const std::string dir_;
   const std::array<unsigned, kLineRoleCount> offsets_;
   const int priority_;
+  const std::string serial_peer_;
   CommandLog log_;
-  TappedBus bus_;
-  drivers::SimCanArm arm_;
+  // One arm, on the transport the cell is configured for.
+  std::optional<TappedBus> bus_;
+  std::optional<drivers::SimCanArm> can_arm_;
+  std::optional<drivers::SimSerialArm> serial_arm_;
   int valve_fd_ = -1;
   std::thread thread_;
   std::atomic<bool> stop_{false};

@@ -43,6 +43,9 @@ struct ReplayOptions {
   // PLC's inputs and reads the valve through (/sys/devices/platform/gpio-sim.N/gpiochipM).
   // Empty: simulated devices in simulated time. The arm is not drawn into the frames.
   std::string gpio_sim;
+  // With gpio_sim, for an arm on a serial line: the line's other end, where the rig's arm
+  // answers (a second port with a null-modem cable, or socat's other pty).
+  std::string arm_serial_peer;
 };
 
 struct TimedPoint {

@@ -4,9 +4,9 @@
 //   (S.NNNNNNNNN) can 202#88130000...        a CAN frame: id#data (id##0data for CAN FD)
 //   (S.NNNNNNNNN) serial 01#05#02A0...       a serial frame: type#seq#payload (serial_protocol.hpp)
 //   (S.NNNNNNNNN) valve open | valve close
-// The simulated
-// world keeps it in simulated time (the same recording and configuration give the same
-// log, byte for byte); the real-device replay's peer keeps it on the real clock.
+// The simulated world keeps it in simulated time (the same recording and configuration
+// give the same log, byte for byte); the real-device replay's peer keeps it on the real
+// clock.
 //
 // Storage for a fixed number of entries is taken once (reserve); a full log counts what it
 // could not keep, so recording an entry never allocates. A log never reserved keeps

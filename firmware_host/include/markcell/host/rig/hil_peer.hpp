@@ -2,7 +2,8 @@
 // The rig's far side of the cell's real devices, for a replay on them
 // (`markcell replay RECORDING --gpio-sim DIR`). In simulated time the world lives inside
 // the cell (its sim_world task); here it runs outside, behind the kernel's devices, and
-// the cell runs unchanged on its real clock, its libgpiod lines and its SocketCAN link:
+// the cell runs unchanged on its real clock, its libgpiod lines and its arm link (SocketCAN
+// or a serial line):
 // - the simulated arm (drivers::SimCanArm: the same mechanics and CANopen node as in
 //   simulated time) on a socket of its own on the cell's CAN interface; or, for an arm on
 //   a serial line, drivers::SimSerialArm (the same mechanics) on the line's other end (a

@@ -467,8 +467,8 @@ std::string real_device_config() {
 namespace {
 
 struct RealReplay {
-  std::string report;        // report.json
-  std::string command_log;   // the rig peer's: the controller's frames to the arm, the valve's edges
+  std::string config;       // the configuration file the cell ran with
+  std::string command_log;  // the rig peer's: the controller's frames to the arm, the valve's edges
 };
 
 // Replays with `config_text` (and `extra_args`), checks what any arm link must show, and
@@ -543,18 +543,17 @@ RealReplay replay_on_real_devices(const test::TempDir& tmp, const std::string& c
               test::json_number(json, "marking_error_mm", "max"),
               test::json_number(json, "seconds_per_defect", "seconds_per_defect"),
               test::json_number(json, "peer_late_ticks", "peer_late_ticks"));
-  return {json, log};
+  return {config, log};
 }
 
 }  // namespace
 
 TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every ding marked, as on the host", "[.][replay]") {
   test::TempDir tmp;
-  const std::string config = real_device_config();
-  const auto run = replay_on_real_devices(tmp, config, "",
+  const auto run = replay_on_real_devices(tmp, real_device_config(), "",
                                           "real: gpio chip " + env("MARKCELL_GPIO_CHIP") + ", CAN " + env("MARKCELL_VCAN"));
   // The controller's set-points to the arm's node over vcan, as the peer's socket heard them.
-  const auto node = host::load_config(tmp.write("check.yaml", config), host::task_catalog()).arm.can.node_id;
+  const auto node = host::load_config(run.config, host::task_catalog()).arm.can.node_id;
   char set_point[16];
   std::snprintf(set_point, sizeof set_point, ") can %03X#", canopen::kTargetPositionId + static_cast<unsigned>(node));
   CHECK(run.command_log.find(set_point) != std::string::npos);

@@ -20,6 +20,8 @@ struct SimCell {
   ~SimCell() { cell.shutdown(control::FaultCode::kShutdown, "test", "end of test"); }
   void run_to(Nanos t) { REQUIRE(cell.sim_clock()->run_until(t) == control::SimClock::RunResult::kReached); }
   bool line(LineRole role) const { return const_cast<Cell&>(cell).sim_gpio()->physical(static_cast<int>(role)); }
+  // The valve opens only with a panel in front of it (the PLC's panel present).
+  void panel_in_front(bool present = true) { cell.drive_sim_input(LineRole::kPlcPanelPresent, present); }
   CellConfig config;
   Cell cell;
 };
@@ -39,6 +41,8 @@ TEST_CASE("the simulated cell brings the arm link up over the simulated CAN arm"
 TEST_CASE("the valve's pulse record and the nozzle's are rings: pulse 300 is counted and readable, the oldest overwritten") {
   // A cell sprays for years: the count never stops, the newest kHistory pulses are kept.
   SimCell s;
+  s.panel_in_front();
+  s.run_to(millis(50));  // the valve's interlock: panel present seen steady
   constexpr std::uint64_t kPulses = control::SprayValve::kHistory + 44;
   for (std::uint64_t i = 0; i < kPulses; ++i) {
     const Nanos start = millis(100) + static_cast<Nanos>(i) * millis(20);
@@ -63,6 +67,7 @@ TEST_CASE("the valve's pulse record and the nozzle's are rings: pulse 300 is cou
 
 TEST_CASE("a valve pulse opens and closes on the executive's ticks") {
   SimCell s;
+  s.panel_in_front();
   s.run_to(millis(100));
   // Asked for 100.5 ms + 80 ms: opens at the first tick at or after 100.5 ms (101 ms),
   // closes at the first tick at or after 180.5 ms (181 ms).
@@ -86,6 +91,7 @@ TEST_CASE("a valve pulse opens and closes on the executive's ticks") {
 
 TEST_CASE("the arm falling silent safe-stops the cell: valve closed, PLC told") {
   SimCell s;
+  s.panel_in_front();
   s.run_to(millis(200));
   REQUIRE(s.cell.spray_valve().request(millis(250), millis(400), false) == control::PulseRequest::kAccepted);
   s.run_to(millis(300));
@@ -128,8 +134,72 @@ TEST_CASE("an e-stop holds the arm where it is") {
   CHECK(held[0] < 0.9 - 0.05);  // it did not carry on to the target
 }
 
+TEST_CASE("no panel present, no spray: the valve refuses a pulse, and closes on the tick after the panel goes") {
+  SimCell s;
+  s.run_to(millis(100));
+  CHECK(s.cell.spray_valve().request(millis(150), millis(80), false) == control::PulseRequest::kNotPermitted);
+  s.panel_in_front();
+  s.run_to(millis(200));
+  REQUIRE(s.cell.spray_valve().request(millis(250), millis(480), false) == control::PulseRequest::kAccepted);
+  s.run_to(micros(700'400));
+  REQUIRE(s.line(LineRole::kSprayValve));
+  s.panel_in_front(false);
+  s.run_to(millis(800));
+  CHECK_FALSE(s.line(LineRole::kSprayValve));
+  REQUIRE(s.cell.spray_valve().pulse_count() == 1);
+  CHECK(s.cell.spray_valve().pulse(0).closed == millis(701));
+  CHECK(s.cell.spray_valve().pulse(0).cut_short);
+  CHECK_FALSE(s.cell.safe_stop().active());  // a panel leaving is not a fault of the cell
+}
+
+TEST_CASE("after an e-stop: the PLC's release and reset send the arm home, then the cell runs again") {
+  SimCell s;
+  s.run_to(millis(200));
+  drivers::ArmCommand move;
+  move.mode = drivers::ArmMode::kMove;
+  move.target.position = {0.9, 0.4, 0.2};
+  s.cell.arm_link().send(move, millis(200));
+  s.run_to(millis(400));
+  s.cell.drive_sim_input(LineRole::kPlcEstop, true);  // pressed
+  s.run_to(millis(1500));
+  REQUIRE(s.cell.safe_stop().done());
+  CHECK(s.line(LineRole::kPlcFault));
+  CHECK_FALSE(s.line(LineRole::kPlcReady));
+  CHECK(s.cell.safe_stop().recoverable());
+  // Released: still stopped, the PLC told so, until its reset edge.
+  s.cell.drive_sim_input(LineRole::kPlcEstop, false);
+  s.run_to(millis(2000));
+  CHECK(s.cell.safe_stop().done());
+  CHECK(s.line(LineRole::kPlcFault));
+  s.cell.drive_sim_input(LineRole::kPlcCycleEnable, false);
+  s.run_to(millis(2100));
+  s.cell.drive_sim_input(LineRole::kPlcCycleEnable, true);
+  s.run_to(millis(2110));
+  CHECK(s.cell.safe_stop().rearm_requested());
+  CHECK(s.cell.safe_stop().done());  // the arm is on its way home
+  s.run_to(millis(6000));
+  CHECK(s.cell.sim_arm()->model().state().flags & drivers::kHomed);
+  CHECK_FALSE(s.cell.safe_stop().active());
+  CHECK(s.line(LineRole::kPlcReady));
+  CHECK_FALSE(s.line(LineRole::kPlcFault));
+  // Every step is in the fault log: the stop, then the re-arm.
+  control::Fault f;
+  std::vector<std::string> log;
+  while (s.cell.faults().pop(f)) log.push_back(std::string(control::to_string(f.code)) + " " + std::string(f.detail.view()));
+  REQUIRE(log.size() >= 2);
+  CHECK(log.front() == "operator_stop e-stop input active");
+  CHECK(log.back() == "rearm e-stop released, reset by cycle enable, arm at home");
+  // And it sprays again.
+  s.panel_in_front();
+  s.run_to(millis(6100));
+  CHECK(s.cell.spray_valve().request(millis(6200), millis(80), false) == control::PulseRequest::kAccepted);
+  s.run_to(millis(6300));
+  CHECK(s.cell.spray_valve().pulse(s.cell.spray_valve().pulse_count() - 1).closed == millis(6280));
+}
+
 TEST_CASE("10,000 cycles of the whole simulated cell allocate nothing") {
   SimCell s;
+  s.panel_in_front();
   s.run_to(millis(200));  // warm-up: link up, first states in
   REQUIRE(s.cell.spray_valve().request(millis(5000), millis(80), false) == control::PulseRequest::kAccepted);
   std::size_t allocations = 0;

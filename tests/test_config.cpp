@@ -1,6 +1,8 @@
 // The cell configuration: the example loads, and every class of bad input is reported
 // with file, line, column, key path and what was expected - all of them, not the first.
 #include <catch2/catch.hpp>
+#include <sys/stat.h>
+
 #include <filesystem>
 #include <string>
 
@@ -302,4 +304,57 @@ TEST_CASE_METHOD(Fixture, "camera_trigger: twice the frame rate, and only with t
   REQUIRE(m.size() == 1);
   CHECK(m[0] == file() + ":14:21: executive.tasks.camera_trigger: devices.cameras.trigger is software: the cameras are not on "
                          "the trigger line; remove camera_trigger or set trigger: hardware");
+}
+
+TEST_CASE_METHOD(Fixture, "the PLC inputs' filter and the re-arm after an e-stop: defaults, values, errors with their position") {
+  REQUIRE(check(kValid).empty());
+  CellConfig c = load_config(file(), task_catalog());
+  CHECK(c.gpio.input_filter == millis(3));
+  CHECK(c.safe_stop.rearm == RearmConfig::kCycleEnable);
+  REQUIRE(check(replace(replace(kValid, "chip: gpiochip0", "chip: gpiochip0\n    input_filter_us: 500"), "plc_fault_line: true}",
+                        "plc_fault_line: true, rearm: never}")).empty());
+  c = load_config(file(), task_catalog());
+  CHECK(c.gpio.input_filter == micros(500));
+  CHECK(c.safe_stop.rearm == RearmConfig::kNever);
+  auto m = messages(check(replace(replace(kValid, "chip: gpiochip0", "chip: gpiochip0\n    input_filter_us: 200000"),
+                                  "plc_fault_line: true}", "plc_fault_line: true, rearm: sometimes}")));
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":17:53: safe_stop.rearm: expected one of: cycle_enable, never, got \"sometimes\"");
+  CHECK(m[1] == file() + ":22:22: devices.gpio.input_filter_us: expected an integer in [0, 100000], got 200000");
+}
+
+TEST_CASE_METHOD(Fixture, "only a regular file of a bounded size is read: a FIFO, a device, a folder, a huge file are refused at once") {
+  const std::string fifo = (dir.path() / "fifo.yaml").string();
+  REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);  // nobody writes it: reading it would block for ever
+  auto m = messages(check_config(fifo, task_catalog()));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == fifo + ": (document): a FIFO, not read (a cell configuration must be a regular file)");
+  m = messages(check_config("/dev/zero", task_catalog()));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == "/dev/zero: (document): a character device, not read (a cell configuration must be a regular file)");
+  m = messages(check_config(dir.path().string(), task_catalog()));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == dir.path().string() + ": (document): a directory, not read (a cell configuration must be a regular file)");
+  const std::string huge = dir.write("huge.yaml", kValid + "# " + std::string(kMaxConfigBytes, 'x') + "\n");
+  m = messages(check_config(huge, task_catalog()));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0].find(huge + ": (document): " + std::to_string(kValid.size() + kMaxConfigBytes + 3) + " bytes, more than the 1048576 allowed") == 0);
+}
+
+TEST_CASE_METHOD(Fixture, "a nesting bomb, an empty file, a second document, a key given twice: each an error with its position") {
+  auto m = messages(check(std::string(50'000, '[') + "\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":1:1: (document): nested more than 64 levels deep");
+  m = messages(check(""));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":1:1: (document): the file is empty: expected the cell configuration (a map)");
+  m = messages(check(kValid + "---\ncell: {name: other}\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":41:1: (document): a second YAML document: a cell configuration is one document");
+  m = messages(check(replace(kValid, "    arm_link: {lane", "    plc_io: {lane: control, period_us: 2000, budget_us: 100}\n    arm_link: {lane")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":11:5: executive.tasks.plc_io: declared twice in this map (yaml would keep only one)");
+  m = messages(check(replace(kValid, "  door: {macro_features: 10}", "  door: {macro_features: 10}\n  door: {macro_features: 8}")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":39:3: panel_types.door: declared twice in this map (yaml would keep only one)");
 }

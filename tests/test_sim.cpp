@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
+#include <sys/stat.h>
 #include <algorithm>
 #include <array>
 #include <filesystem>
@@ -508,6 +509,8 @@ TEST_CASE("the record drop folder: records taken in name order, bad ones and dup
   const auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
   test::TempDir dir;
   const std::string good = read_file(sim_dir() + "/recording/inspection.yaml");
+  REQUIRE(good.size() > 4);
+  REQUIRE(good.substr(good.size() - 4) == "...\n");  // the rig's records end with YAML's end marker
   const auto drop = dir.path() / "drop";
   std::filesystem::create_directories(drop);
   host::RecordFolder folder(drop.string(), cfg.panel_types);
@@ -518,42 +521,146 @@ TEST_CASE("the record drop folder: records taken in name order, bad ones and dup
     offered.emplace_back(job.panel_id.view());
     return true;
   };
-  CHECK_FALSE(folder.poll(offer).has_value());  // empty
+  Nanos now = 0;
+  const auto poll = [&] { return folder.poll(offer, now += millis(50)); };
+  CHECK(poll().empty());  // empty
 
   std::ofstream((drop / "0002.yaml").string()) << good;
   std::ofstream((drop / "0001.yaml.part").string()) << good.substr(0, good.size() / 2);  // still being written
   busy = true;
-  CHECK_FALSE(folder.poll(offer).has_value());  // the sequence holds a record: it waits
+  CHECK(poll().empty());  // new: read once unchanged at the next poll
+  CHECK(poll().empty());  // the sequence holds a record: it waits, parsed
   CHECK(std::filesystem::exists(drop / "0002.yaml"));
   busy = false;
-  auto ev = folder.poll(offer);
-  REQUIRE(ev.has_value());
-  CHECK(ev->kind == host::RecordEvent::Kind::kAccepted);
-  CHECK(ev->file == (drop / "accepted" / "0002.yaml").string());
+  auto ev = poll();
+  REQUIRE(ev.size() == 1);
+  CHECK(ev[0].kind == host::RecordEvent::Kind::kAccepted);
+  CHECK(ev[0].file == (drop / "accepted" / "0002.yaml").string());
   REQUIRE(offered.size() == 1);
   CHECK(std::filesystem::exists(drop / "accepted" / "0002.yaml"));
 
-  // The same panel again, and a record with a broken field.
+  // The same panel again, and a record with a broken field: both rejected in one poll.
   std::ofstream((drop / "0003.yaml").string()) << good;
   std::string bad = good;
   const auto units = bad.find("units: m");
   REQUIRE(units != std::string::npos);
   bad.replace(units, 8, "units: mm");
   std::ofstream((drop / "0004.yaml").string()) << bad;
-  ev = folder.poll(offer);
-  REQUIRE(ev.has_value());
-  CHECK(ev->kind == host::RecordEvent::Kind::kRejected);
-  CHECK(ev->reason.find("0003.yaml: panel_id: '" + offered[0] + "' was already received (a duplicate record)") != std::string::npos);
-  CHECK(read_file((drop / "rejected" / "0003.yaml.reason").string()) == ev->reason + "\n");
-  ev = folder.poll(offer);
-  REQUIRE(ev.has_value());
-  CHECK(ev->kind == host::RecordEvent::Kind::kRejected);
-  INFO(ev->reason);
-  CHECK(ev->reason.rfind((drop / "0004.yaml").string() + ":", 0) == 0);
-  CHECK(ev->reason.find("units") != std::string::npos);
+  CHECK(poll().empty());
+  ev = poll();
+  REQUIRE(ev.size() == 2);
+  CHECK(ev[0].kind == host::RecordEvent::Kind::kRejected);
+  CHECK(ev[0].reason.find("0003.yaml: panel_id: '" + offered[0] + "' was already received (a duplicate record)") != std::string::npos);
+  CHECK(read_file((drop / "rejected" / "0003.yaml.reason").string()) == ev[0].reason + "\n");
+  CHECK(ev[1].kind == host::RecordEvent::Kind::kRejected);
+  INFO(ev[1].reason);
+  CHECK(ev[1].reason.rfind((drop / "0004.yaml").string() + ":", 0) == 0);
+  CHECK(ev[1].reason.find("units") != std::string::npos);
   CHECK(std::filesystem::exists(drop / "rejected" / "0004.yaml"));
   CHECK(offered.size() == 1);  // neither was offered
-  CHECK_FALSE(folder.poll(offer).has_value());  // the .part file is not a record
+  CHECK(poll().empty());  // the .part file is not a record
+}
+
+TEST_CASE("the record drop folder against hostile input: links, FIFOs, folders, huge or unfinished files, junk ahead of a record") {
+  const auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  test::TempDir dir;
+  const std::string good = read_file(sim_dir() + "/recording/inspection.yaml");
+  const auto drop = dir.path() / "drop";
+  std::filesystem::create_directories(drop);
+  host::RecordFolder folder(drop.string(), cfg.panel_types, seconds(1));
+  std::vector<std::string> offered;
+  const auto offer = [&](const control::PanelJob& job) {
+    offered.emplace_back(job.panel_id.view());
+    return true;
+  };
+  Nanos now = 0;
+  const auto poll = [&] { return folder.poll(offer, now += millis(50)); };
+  const auto reason_of = [&](const std::vector<host::RecordEvent>& events, const std::string& name) {
+    for (const auto& e : events)
+      if (e.file.find("/rejected/" + name) != std::string::npos) return e.reason;
+    return std::string("(not rejected)");
+  };
+  std::filesystem::create_symlink("/etc/passwd", drop / "0001.yaml");
+  REQUIRE(::mkfifo((drop / "0002.yaml").c_str(), 0600) == 0);
+  std::filesystem::create_directories(drop / "0003.yaml");
+  std::filesystem::create_symlink(drop / "missing", drop / "0004.yaml");  // dangling
+  std::ofstream((drop / "0005.yaml").string()) << std::string(host::RecordFolder::kMaxRecordBytes + 1, '#');
+  std::string extra = good;
+  extra.insert(0, "junk: [1, 2, 3]\n");
+  std::ofstream((drop / "0006.yaml").string()) << extra;
+  std::ofstream((drop / "0007.yaml").string()) << std::string(5000, '[') << "\n...\n";
+  std::string bad_id = good;
+  bad_id.replace(bad_id.find("panel_id: ") + 10, 0, "p7\\n<6>markcell: panel=x result=done ");
+  bad_id.replace(bad_id.find("panel_id: ") + 10, 0, "\"");
+  bad_id.insert(bad_id.find('\n', bad_id.find("panel_id: ")), "\"");
+  std::ofstream((drop / "0008.yaml").string()) << bad_id;
+  std::ofstream((drop / "0009.yaml").string()) << good;
+  auto ev = poll();  // the ones that are no regular file at once; the others once unchanged
+  CHECK(reason_of(ev, "0001.yaml").find("0001.yaml: a symbolic link, not read") != std::string::npos);
+  CHECK(reason_of(ev, "0002.yaml").find("0002.yaml: a FIFO, not read") != std::string::npos);
+  CHECK(reason_of(ev, "0003.yaml").find("0003.yaml: a directory, not read") != std::string::npos);
+  CHECK(reason_of(ev, "0004.yaml").find("0004.yaml: a symbolic link, not read") != std::string::npos);
+  CHECK(reason_of(ev, "0005.yaml").find("0005.yaml: 1048577 bytes, more than the 1048576 allowed for an inspection record") !=
+        std::string::npos);
+  CHECK(std::filesystem::exists("/etc/passwd"));
+  ev = poll();
+  CHECK(reason_of(ev, "0006.yaml").find("0006.yaml:1:1: junk: unknown key (known: panel_id, panel_type, frame, units, "
+                                        "macro_features, defects)") != std::string::npos);
+  CHECK(reason_of(ev, "0007.yaml").find("0007.yaml:1: nested deeper than an inspection record is") != std::string::npos);
+  CHECK(reason_of(ev, "0008.yaml").find("panel_id: character 3 (0x0a, a control character) is not allowed") != std::string::npos);
+  // ... and the valid record behind them all is taken in the same poll.
+  REQUIRE(offered.size() == 1);
+  CHECK(std::filesystem::exists(drop / "accepted" / "0009.yaml"));
+
+  // A record written in place, its writer pausing after the first defect: it waits (no
+  // end marker), then is rejected, never half-used.
+  std::string next = good;
+  next.replace(next.find("panel_id: ") + 10, next.find('\n', next.find("panel_id: ")) - next.find("panel_id: ") - 10, "door-2");
+  std::ofstream((drop / "0010.yaml").string()) << next.substr(0, next.find("points:") + 8);
+  for (int i = 0; i < 10; ++i) CHECK(poll().empty());  // 0.5 s: waiting for the rest
+  // Finished in time, it is taken whole.
+  std::ofstream((drop / "0010.yaml").string()) << next;
+  CHECK(poll().empty());
+  ev = poll();
+  REQUIRE(ev.size() == 1);
+  CHECK(ev[0].kind == host::RecordEvent::Kind::kAccepted);
+  // The station's counter restarts: the same file name again does not overwrite accepted/0010.yaml.
+  next.replace(next.find("door-2"), 6, "door-3");
+  std::ofstream((drop / "0010.yaml").string()) << next.substr(0, next.size() - 4);  // no end marker, for good
+  for (int i = 0; i < 22 && ev.size() != 0; ++i) ev = poll();
+  for (int i = 0; i < 22 && ev.empty(); ++i) ev = poll();
+  REQUIRE(ev.size() == 1);
+  CHECK(ev[0].reason.find("0010.yaml: incomplete: its last line is not YAML's end-of-document marker '...'") != std::string::npos);
+  CHECK(ev[0].file == (drop / "rejected" / "0010.yaml").string());
+  next.replace(next.find("door-3"), 6, "door-4");
+  std::ofstream((drop / "0010.yaml").string()) << next;
+  // rejected/ removed while running does not stick the queue either.
+  std::filesystem::remove_all(drop / "rejected");
+  std::ofstream((drop / "0009.yaml").string()) << "not: a record\n...\n";
+  poll();
+  ev = poll();
+  REQUIRE(ev.size() == 2);
+  CHECK(ev[0].kind == host::RecordEvent::Kind::kRejected);
+  CHECK(ev[1].kind == host::RecordEvent::Kind::kAccepted);
+  CHECK(ev[1].file == (drop / "accepted" / "0010.1.yaml").string());
+  CHECK(std::filesystem::exists(drop / "accepted" / "0010.yaml"));
+
+  // 200 junk files ahead of a record: cleared within a few polls, the record taken then.
+  for (int i = 0; i < 200; ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "1%03d.yaml", i);
+    std::ofstream((drop / name).string()) << "junk\n...\n";
+  }
+  next.replace(next.find("door-4"), 6, "door-5");
+  std::ofstream((drop / "2000.yaml").string()) << next;
+  int polls = 0;
+  const std::size_t before = offered.size();
+  while (offered.size() == before && polls < 20) {
+    poll();
+    ++polls;
+  }
+  CHECK(offered.size() == before + 1);
+  CHECK(polls <= 5);  // 250 ms at the service's 50 ms poll
 }
 
 TEST_CASE("a panel without an inspection record: PLC fault after the record timeout, the arm never moves, the result says so") {
@@ -883,4 +990,27 @@ TEST_CASE("replay with a scripted PLC: an e-stop mid-panel ends it, nothing spra
   INFO(refused.output);
   CHECK(refused.exit_code == 2);
   CHECK(refused.output.find(bad + ":1: level 'on' must be 0 or 1") != std::string::npos);
+}
+
+TEST_CASE("replay with a scripted PLC: panel present dropping mid-pulse closes the valve on the next tick, the defect cut short") {
+  test::TempDir dir;
+  // The first ding's pulse opens at about 0.70 s for 80 ms; the panel-present line drops at 0.72 s, within it.
+  const std::string script = dir.write("drop.txt", "# the photo-eye loses the panel during the first spray\n0.72 plc_panel_present 0\n");
+  const std::string out = (dir.path() / "drop").string();
+  const std::string json = replay_report(sim_dir() + "/recording", " --plc-script " + script, out);
+  INFO(json);
+  const std::string log = read_file(out + "/commands.log");
+  const auto open = log.find(") valve open");
+  const auto close = log.find(") valve close");
+  REQUIRE(open != std::string::npos);
+  REQUIRE(close != std::string::npos);
+  const auto stamp = [&](std::size_t at) { return std::stod(log.substr(log.rfind('(', at) + 1, at - log.rfind('(', at) - 1)); };
+  REQUIRE(stamp(open) > 0.64);
+  REQUIRE(stamp(open) < 0.72);
+  CHECK(stamp(close) > 0.720);
+  CHECK(stamp(close) <= 0.721 + 1e-9);  // one 1 ms control tick after the drop, not the pulse's 0.08 s
+  CHECK(log.find("valve open", close) == std::string::npos);  // never again
+  CHECK(json_number(json, "defects", "sprayed") == 0);
+  CHECK(json.find("its spray was cut short (panel present dropped during the pulse)") != std::string::npos);
+  CHECK(json.find("panel left during the marking sequence") != std::string::npos);
 }

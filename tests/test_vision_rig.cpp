@@ -1,6 +1,7 @@
 // The rig's cameras: the renderer against OpenCV's projection and corner refinement,
 // its determinism, and the recording format round trip with every bad-frame report.
 #include <catch2/catch.hpp>
+#include <sys/stat.h>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -255,7 +256,8 @@ TEST_CASE("bad frames are reported with their index and dropped, never a crash")
   CHECK_FALSE(rec.read(0).dropped);
   const auto f1 = rec.read(1), f2 = rec.read(2), f3 = rec.read(3), f9 = rec.read(9);
   CHECK(f1.dropped);
-  CHECK(f1.problem == "frame 1 (seq 1, frames.csv:3): right image right/000001.png is missing or unreadable");
+  CHECK(f1.problem ==
+        "frame 1 (seq 1, frames.csv:3): right image right/000001.png is missing or unreadable (cannot open: No such file or directory)");
   CHECK(f2.dropped);
   CHECK(f2.problem == "frame 2 (seq 2, frames.csv:4): left image left/000002.png is 32x24, the recording says 64x48");
   CHECK(f3.dropped);
@@ -266,6 +268,80 @@ TEST_CASE("bad frames are reported with their index and dropped, never a crash")
 
   std::filesystem::remove(folder + "/recording.yaml");
   CHECK_THROWS_WITH(Recording::open(folder), folder + "/recording.yaml: missing (is " + folder + " a recording?)");
+}
+
+TEST_CASE("hostile frames and index lines: a PNG bomb, 16-bit and 2-channel images, a FIFO, paths out of the folder, times at the limits") {
+  test::TempDir dir;
+  const std::string folder = (dir.path() / "rec").string();
+  RecordingManifest m;
+  m.panel_type = "door";
+  m.frame_rate_hz = 30;
+  m.image_width = 64;
+  m.image_height = 48;
+  m.calibration = "stereo.yaml";
+  const cv::Mat img(48, 64, CV_8UC1, cv::Scalar(100));
+  {
+    RecordingWriter w(folder, m);
+    for (int i = 0; i < 2; ++i) w.add(static_cast<std::uint64_t>(i), 1000 * (i + 1), img, img);
+  }
+  // A PNG whose header declares 60000x60000 (the file itself is small): refused from the
+  // header, nothing decoded or allocated for its pixels.
+  std::vector<uchar> png;
+  cv::imencode(".png", cv::Mat(2, 2, CV_8UC1, cv::Scalar(1)), png);
+  const auto put32 = [&](std::size_t at, std::uint32_t v) {
+    for (int k = 0; k < 4; ++k) png[at + static_cast<std::size_t>(k)] = static_cast<uchar>(v >> (24 - 8 * k));
+  };
+  put32(16, 60000);
+  put32(20, 60000);
+  std::ofstream(folder + "/left/bomb.png", std::ios::binary).write(reinterpret_cast<const char*>(png.data()),
+                                                                   static_cast<std::streamsize>(png.size()));
+  cv::imwrite(folder + "/left/deep.png", cv::Mat(48, 64, CV_16UC1, cv::Scalar(1000)));
+  std::vector<uchar> two_png;
+  cv::imencode(".png", cv::Mat(48, 64, CV_8UC4, cv::Scalar(1, 2, 3, 4)), two_png);
+  // (OpenCV writes no grey+alpha PNG: colour type 4 is patched into an RGBA one's header,
+  // which is all the reader looks at before it refuses.)
+  two_png[25] = 4;
+  std::ofstream(folder + "/left/two.png", std::ios::binary).write(reinterpret_cast<const char*>(two_png.data()),
+                                                                  static_cast<std::streamsize>(two_png.size()));
+  REQUIRE(::mkfifo((folder + "/left/fifo.png").c_str(), 0600) == 0);
+  std::filesystem::create_symlink("/etc", folder + "/out");
+  std::ofstream(folder + "/frames.csv") << "seq,time_ns,left,right\n"
+                                        << "0,1000,left/bomb.png,right/000000.png\n"
+                                        << "1,2000,left/deep.png,right/000000.png\n"
+                                        << "2,3000,left/two.png,right/000000.png\n"
+                                        << "3,4000,left/fifo.png,right/000000.png\n"
+                                        << "4,5000,../rec/left/000000.png,right/000000.png\n"
+                                        << "5,6000,/etc/passwd,right/000000.png\n"
+                                        << "6,7000,out/passwd,right/000000.png\n"
+                                        << "7,9223372036854775807,left/000000.png,right/000000.png\n"
+                                        << "8,-9223372036854775808,left/000000.png,right/000000.png\n";
+  const Recording rec = Recording::open(folder);
+  for (const auto& p : rec.index_problems()) UNSCOPED_INFO(p);
+  REQUIRE(rec.index_problems().size() == 5);
+  CHECK(rec.index_problems()[0] == "frames.csv:6: image path '../rec/left/000000.png' leaves the recording folder (..)");
+  CHECK(rec.index_problems()[1] == "frames.csv:7: image path '/etc/passwd' is an absolute path (image paths are relative to the recording folder)");
+  CHECK(rec.index_problems()[2] == "frames.csv:8: image path 'out/passwd' leads out of the recording folder (through a symbolic link)");
+  CHECK(rec.index_problems()[3] == "frames.csv:9: time_ns 9223372036854775807 is out of range (at most 2^62 ns from 0)");
+  CHECK(rec.index_problems()[4] == "frames.csv:10: time_ns -9223372036854775808 is out of range (at most 2^62 ns from 0)");
+  REQUIRE(rec.size() == 4);
+  CHECK(rec.read(0).problem == "frame 0 (seq 0, frames.csv:2): left image left/bomb.png is 60000x60000, the recording says 64x48");
+  CHECK(rec.read(1).problem == "frame 1 (seq 1, frames.csv:3): left image left/deep.png is not 8-bit (16 bits a sample)");
+  CHECK(rec.read(2).problem ==
+        "frame 2 (seq 2, frames.csv:4): left image left/two.png has 2 channels (grey and alpha): expected grey, RGB or RGBA");
+  CHECK(rec.read(3).problem == "frame 3 (seq 3, frames.csv:5): left image left/fifo.png is missing or unreadable (a FIFO, not read "
+                               "(a recorded image must be a regular file))");
+  for (std::size_t i = 0; i < 4; ++i) CHECK(rec.read(i).dropped);
+
+  // The manifest: a frame rate that is not a number, and a calibration outside the folder.
+  std::string manifest = test::read_file(folder + "/recording.yaml");
+  const std::string rate = "frame_rate_hz: 30";
+  REQUIRE(manifest.find(rate) != std::string::npos);
+  std::ofstream(folder + "/recording.yaml") << std::string(manifest).replace(manifest.find(rate), rate.size(), "frame_rate_hz: .nan");
+  CHECK_THROWS_WITH(Recording::open(folder), folder + "/recording.yaml: key 'frame_rate_hz': must be a number in (0, 10000], got .nan");
+  const std::string cal = "calibration: stereo.yaml";
+  REQUIRE(manifest.find(cal) != std::string::npos);
+  std::ofstream(folder + "/recording.yaml") << std::string(manifest).replace(manifest.find(cal), cal.size(), "calibration: ../../x.yaml");
+  CHECK_THROWS_WITH(Recording::open(folder), folder + "/recording.yaml: key 'calibration': '../../x.yaml' leaves the recording folder (..)");
 }
 
 TEST_CASE("calibrate-stereo recovers a known rig from rendered chessboard views") {

@@ -14,6 +14,8 @@ std::string_view to_string(FaultCode code) {
     case FaultCode::kOperatorStop: return "operator_stop";
     case FaultCode::kShutdown: return "shutdown";
     case FaultCode::kFrameDropped: return "frame_dropped";
+    case FaultCode::kInputGlitch: return "input_glitch";
+    case FaultCode::kRearm: return "rearm";
   }
   return "unknown";
 }
@@ -70,11 +72,37 @@ bool SafeStop::trigger(Nanos time, FaultCode code, std::string_view source,
   fault.source.assign(source);
   fault.detail.assign(detail);
   log_.push(fault);
+  if (code != FaultCode::kOperatorStop && code != FaultCode::kShutdown) unrecoverable_.store(true, std::memory_order_release);
   int expected = kIdle;
   if (!state_.compare_exchange_strong(expected, kStopping, std::memory_order_acq_rel)) return false;
   reason_ = fault;
   for (int i = 0; i < output_count_; ++i) outputs_[static_cast<std::size_t>(i)]->enter_safe_state();
+  stops_.fetch_add(1, std::memory_order_acq_rel);
   state_.store(kStopped, std::memory_order_release);
+  return true;
+}
+
+void SafeStop::cancel_rearm(Nanos time, std::string_view detail) noexcept {
+  if (!rearm_requested_.exchange(false, std::memory_order_acq_rel)) return;
+  Fault fault;
+  fault.time = time;
+  fault.code = FaultCode::kRearm;
+  fault.source.assign("safe_stop");
+  fault.detail.assign(detail);
+  log_.push(fault);
+}
+
+bool SafeStop::rearm(Nanos time, std::string_view detail) noexcept {
+  rearm_requested_.store(false, std::memory_order_release);
+  if (!recoverable()) return false;
+  int expected = kStopped;
+  if (!state_.compare_exchange_strong(expected, kIdle, std::memory_order_acq_rel)) return false;
+  Fault fault;
+  fault.time = time;
+  fault.code = FaultCode::kRearm;
+  fault.source.assign("safe_stop");
+  fault.detail.assign(detail);
+  log_.push(fault);
   return true;
 }
 

@@ -18,6 +18,7 @@ std::string_view to_string(SkipReason r) {
     case SkipReason::kNotFound: return "panel's macro-features not found";
     case SkipReason::kStopped: return "stopped before the defect's turn (safe stop or panel left)";
     case SkipReason::kNoPanel: return "its panel never came (the record expired)";
+    case SkipReason::kCutShort: return "its spray was cut short (panel present dropped during the pulse)";
   }
   return "?";
 }
@@ -94,7 +95,7 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
       break;
     }
     case MarkingState::kAcquire:
-      if (!plc.panel_present) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
+      if (panel_left(plc)) fail_panel(now, "panel left before its macro-features were found", SkipReason::kStopped);
       else if (now > deadline_ && search_when_home_)
         fail_panel(now, "arm did not reach home in time to search again for the macro-features",
                    SkipReason::kIntercalibration);
@@ -111,19 +112,26 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
       }
       break;
     case MarkingState::kHold:
-      if (!plc.panel_present) fail_panel(now, "panel left before its marking began", SkipReason::kStopped);
+      if (panel_left(plc)) fail_panel(now, "panel left before its marking began", SkipReason::kStopped);
       else if (now >= hold_until_) next_defect(now);  // no pose came to end it earlier
       break;
     case MarkingState::kApproach:
-      if (!plc.panel_present) fail_panel(now, "panel left during the marking sequence", SkipReason::kStopped);
+      if (panel_left(plc)) fail_panel(now, "panel left during the marking sequence", SkipReason::kStopped);
       else approach(now, ctx);
       break;
     case MarkingState::kSpraying: {
       const std::uint64_t n = valve_.pulse_count();
-      if (!valve_.open() && n > 0 && valve_.pulse(n - 1).closed >= 0 &&
-          valve_.pulse(n - 1).requested_start == result_.defects[static_cast<std::size_t>(defect_)].spray_requested) {
-        result_.defects[static_cast<std::size_t>(defect_)].sprayed = true;
-        next_defect(now);
+      auto& d = result_.defects[static_cast<std::size_t>(defect_)];
+      if (!valve_.open() && n > 0 && valve_.pulse(n - 1).requested_start == d.spray_requested &&
+          (valve_.pulse(n - 1).closed >= 0 || valve_.pulse(n - 1).cut_short)) {
+        // A pulse the valve's interlock cut short laid down too little paint, or none:
+        // the defect is not marked (a second pulse on a wet spot would be a blot).
+        if (valve_.pulse(n - 1).cut_short) d.skipped = SkipReason::kCutShort;
+        else d.sprayed = true;
+        if (panel_left(plc)) fail_panel(now, "panel left during the marking sequence", SkipReason::kStopped);
+        else next_defect(now);
+      } else if (panel_left(plc)) {
+        fail_panel(now, "panel left during the marking sequence", SkipReason::kStopped);
       }
       break;
     }
@@ -188,6 +196,7 @@ void MarkingSequence::take_job(Nanos now) {
 
 void MarkingSequence::start_panel(Nanos now) {
   present_since_ = -1;
+  drops_at_start_ = plc_io_.inputs().panel_present_drops;
   take_job(now);
   set_plc(plc_.done, false);
   set_plc(plc_.fault, false);
@@ -559,6 +568,12 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
 }
 
 void MarkingSequence::fail_panel(Nanos now, std::string_view reason, SkipReason skip) {
+  // Whatever ends the panel closes the valve on this tick, mid-pulse or not.
+  valve_.cancel(now);
+  if (state_ == MarkingState::kSpraying && defect_ >= 0) {
+    auto& d = result_.defects[static_cast<std::size_t>(defect_)];
+    if (!d.sprayed && d.skipped == SkipReason::kNone) d.skipped = SkipReason::kCutShort;
+  }
   result_.fault = true;
   result_.reason = reason;
   for (int i = 0; i < job_.defect_count; ++i) {

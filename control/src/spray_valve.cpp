@@ -6,6 +6,7 @@ PulseRequest SprayValve::request(Nanos start, Nanos length, bool safe_stopped) n
   if (safe_stopped) return PulseRequest::kSafeStopped;
   if (pending_ || open_) return PulseRequest::kBusy;
   if (length < min_ || length > max_) return PulseRequest::kBadLength;
+  if (permit_ != nullptr && !*permit_) return PulseRequest::kNotPermitted;
   current_ = SprayPulse{start, length, -1, -1, false};
   pending_ = true;
   return PulseRequest::kAccepted;
@@ -16,12 +17,27 @@ void SprayValve::set(bool value) noexcept {
   open_ = value;
 }
 
+void SprayValve::finish() noexcept {
+  history_[static_cast<std::size_t>(count_++ % kHistory)] = current_;
+  pending_ = false;
+}
+
+void SprayValve::cancel(Nanos now) noexcept {
+  if (!open_ && !pending_) return;
+  if (open_) {
+    set(false);
+    current_.closed = now;
+  }
+  current_.cut_short = true;
+  finish();
+}
+
 TaskResult SprayValve::step(const TaskContext& ctx) noexcept {
   const Nanos now = ctx.now();
-  auto finish = [&] {
-    history_[static_cast<std::size_t>(count_++ % kHistory)] = current_;
-    pending_ = false;
-  };
+  if (permit_ != nullptr && !*permit_ && (open_ || pending_)) {
+    cancel(now);  // no panel in front of the nozzle (or an e-stop): closed on this tick
+    return io_errors_ > 0 ? TaskResult::kFault : TaskResult::kOk;
+  }
   if (ctx.safe_stopped()) {
     // The safe stop has already driven the line; keep the books straight.
     if (open_ || pending_) {

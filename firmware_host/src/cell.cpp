@@ -186,10 +186,17 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
   map.busy = gpio_line(LineRole::kPlcBusy);
   map.done = gpio_line(LineRole::kPlcDone);
   map.fault = gpio_line(LineRole::kPlcFault);
-  plc_io_ = std::make_unique<control::PlcIo>(*gpio_, map, safe_stop_);
+  plc_io_ = std::make_unique<control::PlcIo>(
+      *gpio_, map, safe_stop_, config.gpio.input_filter,
+      config.safe_stop.rearm == RearmConfig::kNever ? control::RearmPolicy::kNever : control::RearmPolicy::kCycleEnable);
 
   spray_valve_ = std::make_unique<control::SprayValve>(*gpio_, gpio_line(LineRole::kSprayValve), config.spray.min_pulse,
                                                        config.spray.max_pulse);
+  // The valve opens only while the PLC's panel present holds (the marking task needs
+  // plc_io in the table: the loader says so).
+  const bool has_plc_io = std::any_of(config.executive.tasks.begin(), config.executive.tasks.end(),
+                                      [](const control::TaskSpec& t) { return t.name == "plc_io"; });
+  if (has_plc_io) spray_valve_->set_permit(&plc_io_->inputs().spray_permitted);
 
   // The arm link. A simulated arm is a CAN node on an in-memory wire, so the real CAN
   // codec and link state machine run in the simulated cell too.
@@ -211,7 +218,8 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
       break;
   }
   arm_supervision_ = std::make_unique<control::ArmSupervision>(*arm_link_, safe_stop_,
-                                                               config.safe_stop.arm == ArmSafeAction::kHome);
+                                                               config.safe_stop.arm == ArmSafeAction::kHome,
+                                                               config.marking.home_timeout);
   if (sim_world_) sim_world_->valve = spray_valve_.get();
 
   // Vision and marking, when configured: the rig model, one tracker per panel type, the
@@ -250,6 +258,14 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
       frame_source_ = std::make_unique<vision::RecordingFrameSource>(config.cameras.recording, config.cameras.latency,
                                                                      clock == ClockKind::kSimulated, seconds(60),
                                                                      clock == ClockKind::kReal ? loader_priority : 0);
+      // A recording of another size than the calibration would reach the tracker frame by
+      // frame: refused here, naming both.
+      const auto& m = static_cast<vision::RecordingFrameSource&>(*frame_source_).recording().manifest();
+      if (m.image_width != rig_->width() || m.image_height != rig_->height())
+        throw std::runtime_error(config.cameras.recording + ": the recording's images are " + std::to_string(m.image_width) +
+                                 "x" + std::to_string(m.image_height) + ", the stereo calibration " +
+                                 config.calibration.stereo + " is for " + std::to_string(rig_->width()) + "x" +
+                                 std::to_string(rig_->height()));
     }
     else if (config.cameras.source == CameraSource::kAravis)
       frame_source_ = std::make_unique<CameraFrameSource>(

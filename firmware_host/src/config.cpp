@@ -11,6 +11,8 @@
 #include <optional>
 #include <sstream>
 
+#include "markcell/common/bounded_file.hpp"
+
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/panel_tracker.hpp"
 
@@ -130,6 +132,25 @@ class Reader {
   }
 
   // Returns the child or, when required and missing, reports it (at the parent).
+  // A key given twice in one map: yaml-cpp keeps one of them silently (a task declared
+  // twice, a panel type twice). Each repeat is an error at its own position. Bounded:
+  // the text's nesting was checked before parsing.
+  void duplicate_keys(const YAML::Node& node, const std::string& path, int depth = 0) {
+    if (depth > kMaxYamlNesting) return;
+    if (node.IsMap()) {
+      std::vector<std::string> seen;
+      for (const auto& kv : node) {
+        const std::string key = kv.first.IsScalar() ? kv.first.Scalar() : std::string();
+        if (!key.empty() && std::find(seen.begin(), seen.end(), key) != seen.end())
+          error(kv.first, join_path(path, key), "declared twice in this map (yaml would keep only one)");
+        seen.push_back(key);
+        duplicate_keys(kv.second, join_path(path, key), depth + 1);
+      }
+    } else if (node.IsSequence()) {
+      for (std::size_t i = 0; i < node.size(); ++i) duplicate_keys(node[i], path + "[" + std::to_string(i) + "]", depth + 1);
+    }
+  }
+
   std::optional<YAML::Node> child(const YAML::Node& parent, const std::string& path, const std::string& key,
                                   bool required) {
     if (!parent.IsMap()) return std::nullopt;
@@ -411,8 +432,11 @@ void read_watchdog(Reader& r, const YAML::Node& node, WatchdogConfig& w) {
 
 void read_gpio(Reader& r, const YAML::Node& node, GpioConfig& g) {
   const std::string P = "devices.gpio";
-  if (!r.map(node, P, {"simulated", "chip", "lines"})) return;
+  if (!r.map(node, P, {"simulated", "chip", "lines", "input_filter_us"})) return;
   r.boolean(node, P, "simulated", g.simulated);
+  long long filter_us = g.input_filter / kNanosPerMicro;
+  r.integer(node, P, "input_filter_us", filter_us, 0, 100'000, false);
+  g.input_filter = filter_us * kNanosPerMicro;
   r.text(node, P, "chip", g.chip);
   std::vector<std::string> roles;
   for (std::size_t i = 0; i < kLineRoleCount; ++i) roles.emplace_back(to_string(static_cast<LineRole>(i)));
@@ -707,11 +731,16 @@ std::vector<ConfigError> check_config(const std::string& path, const std::vector
 }
 
 CellConfig load_config(const std::string& path, const std::vector<std::string>& known_tasks) {
-  std::ifstream in(path);
-  if (!in) throw ConfigInvalid({ConfigError{path, 0, 0, "", "cannot open the file"}});
-  std::stringstream text;
-  text << in.rdbuf();
-  return load_config_text(text.str(), path, known_tasks);
+  std::string text;
+  try {
+    text = read_bounded_file(path, kMaxConfigBytes, "a cell configuration");
+  } catch (const FileRefused& e) {
+    // The message starts with the path; the error names it once.
+    std::string what = e.what();
+    if (what.rfind(path + ": ", 0) == 0) what.erase(0, path.size() + 2);
+    throw ConfigInvalid({ConfigError{path, 0, 0, "", what}});
+  }
+  return load_config_text(text, path, known_tasks);
 }
 
 std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
@@ -731,13 +760,28 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   CellConfig cfg;
   cfg.file = path;
   YAML::Node root;
+  if (text.size() > kMaxConfigBytes)
+    throw ConfigInvalid({ConfigError{path, 1, 1, "", std::to_string(text.size()) + " bytes, more than the " +
+                                                       std::to_string(kMaxConfigBytes) + " allowed for a cell configuration"}});
+  if (const int line = nesting_beyond(text, kMaxYamlNesting); line > 0)
+    throw ConfigInvalid({ConfigError{path, line, 1, "", "nested more than " + std::to_string(kMaxYamlNesting) + " levels deep"}});
   try {
-    root = YAML::Load(text);
+    std::vector<YAML::Node> docs = YAML::LoadAll(text);
+    if (docs.empty() || docs[0].IsNull())
+      throw ConfigInvalid({ConfigError{path, 1, 1, "", "the file is empty: expected the cell configuration (a map)"}});
+    if (docs.size() > 1) {
+      const YAML::Mark m = docs[1].Mark();
+      throw ConfigInvalid({ConfigError{path, m.line >= 0 ? m.line + 1 : 1, m.column >= 0 ? m.column + 1 : 1, "",
+                                       "a second YAML document: a cell configuration is one document"}});
+    }
+    root = docs[0];
   } catch (const YAML::ParserException& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML syntax: " + e.msg}});
   } catch (const YAML::Exception& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML: " + e.msg}});
   }
+  r.duplicate_keys(root, "");
+  if (!errors.empty()) throw ConfigInvalid(errors);
   if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "spray", "devices", "calibration", "panel_types",
                       "vision", "marking", "base_calibration"}))
     throw ConfigInvalid(errors);
@@ -764,8 +808,10 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   std::vector<YAML::Mark> task_marks;
   if (const auto e = r.child(root, "", "executive", true)) read_executive(r, *e, known_tasks, cfg, task_marks);
   if (const auto w = r.child(root, "", "watchdog", true)) read_watchdog(r, *w, cfg.watchdog);
-  if (const auto s = r.child(root, "", "safe_stop", true); s && r.map(*s, "safe_stop", {"arm", "plc_fault_line"})) {
+  if (const auto s = r.child(root, "", "safe_stop", true); s && r.map(*s, "safe_stop", {"arm", "plc_fault_line", "rearm"})) {
     r.choice(*s, "safe_stop", "arm", cfg.safe_stop.arm, {{"hold", ArmSafeAction::kHold}, {"home", ArmSafeAction::kHome}});
+    r.choice(*s, "safe_stop", "rearm", cfg.safe_stop.rearm,
+             {{"cycle_enable", RearmConfig::kCycleEnable}, {"never", RearmConfig::kNever}}, false);
     r.boolean(*s, "safe_stop", "plc_fault_line", cfg.safe_stop.plc_fault_line);
   }
   if (const auto sp = r.child(root, "", "spray", true);
@@ -812,6 +858,9 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
     const bool has_vision = tasks["vision"].IsDefined(), has_marking = tasks["marking"].IsDefined();
     if (has_marking && !has_vision)
       r.error(tasks["marking"], "executive.tasks.marking", "the marking task needs the vision task in the table");
+    if (has_marking && !tasks["plc_io"].IsDefined())
+      r.error(tasks["marking"], "executive.tasks.marking",
+              "the marking task needs the plc_io task in the table (panel present and the valve's interlock come from it)");
     if (has_vision && cfg.calibration.stereo.empty())
       r.error(tasks["vision"], "executive.tasks.vision", "the vision task needs calibration.stereo");
     if (const YAML::Node trig = tasks["camera_trigger"]; trig.IsDefined()) {

@@ -1,11 +1,14 @@
 #include "markcell/host/inspection_record.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <set>
 #include <sstream>
 
 #include <yaml-cpp/yaml.h>
+
+#include "markcell/common/bounded_file.hpp"
 
 namespace markcell::host {
 
@@ -34,6 +37,21 @@ Eigen::Vector3d point(const std::string& path, const YAML::Node& n, const std::s
   return p;
 }
 
+// Keys outside the format are errors: a record is what the format says, no more (a
+// 10 MB list under an unknown key was accepted, and parsed whole).
+void only_keys(const std::string& path, const YAML::Node& map, const std::string& where, std::initializer_list<const char*> keys) {
+  for (const auto& kv : map) {
+    const std::string k = kv.first.IsScalar() ? kv.first.Scalar() : std::string("?");
+    bool known = false;
+    for (const char* allowed : keys) known = known || k == allowed;
+    if (!known) {
+      std::string list;
+      for (const char* allowed : keys) list += std::string(list.empty() ? "" : ", ") + allowed;
+      fail(path, kv.first, where.empty() ? k : where + "." + k, "unknown key (known: " + list + ")");
+    }
+  }
+}
+
 std::string scalar(const std::string& path, const YAML::Node& root, const std::string& key) {
   const YAML::Node n = root[key];
   if (!n.IsDefined()) fail(path, root, key, "missing");
@@ -45,15 +63,23 @@ std::string scalar(const std::string& path, const YAML::Node& root, const std::s
 control::PanelJob parse_inspection_record(const std::string& text, const std::string& path,
                                           const std::vector<PanelTypeConfig>& panel_types) {
   YAML::Node root;
+  if (text.size() > kMaxInspectionRecordBytes)
+    throw RecordInvalid(path + ": " + std::to_string(text.size()) + " bytes, more than the " +
+                        std::to_string(kMaxInspectionRecordBytes) + " allowed for an inspection record");
+  if (const int line = nesting_beyond(text, 8); line > 0)
+    throw RecordInvalid(path + ":" + std::to_string(line) + ": nested deeper than an inspection record is (8 levels)");
   try {
-    root = YAML::Load(text);
+    std::vector<YAML::Node> docs = YAML::LoadAll(text);
+    if (docs.size() > 1) throw RecordInvalid(path + ": a second YAML document: a record is one document");
+    if (!docs.empty()) root = docs[0];
   } catch (const YAML::Exception& e) {
     throw RecordInvalid(path + ":" + std::to_string(e.mark.line + 1) + ": YAML: " + e.msg);
   }
   if (!root.IsMap()) fail(path, root, "(document)", "expected a map");
+  only_keys(path, root, "", {"panel_id", "panel_type", "frame", "units", "macro_features", "defects"});
   control::PanelJob job;
   const std::string id = scalar(path, root, "panel_id");
-  if (id.size() > 63) fail(path, root["panel_id"], "panel_id", "longer than 63 characters");
+  if (const std::string why = panel_id_problem(id); !why.empty()) fail(path, root["panel_id"], "panel_id", why);
   job.panel_id.assign(id);
   const std::string type = scalar(path, root, "panel_type");
   const PanelTypeConfig* panel = nullptr;
@@ -83,6 +109,7 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
     const std::string F = "defects[" + std::to_string(i) + "]";
     const YAML::Node d = defects[i];
     if (!d.IsMap()) fail(path, d, F, "expected a map with id and points");
+    only_keys(path, d, F, {"id", "points"});
     int did = 0;
     try {
       did = d["id"].as<int>();
@@ -104,12 +131,31 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
   return job;
 }
 
+std::string panel_id_problem(std::string_view id) {
+  if (id.empty()) return "empty";
+  if (id.size() > 63) return "longer than 63 characters";
+  for (std::size_t i = 0; i < id.size(); ++i) {
+    const auto c = static_cast<unsigned char>(id[i]);
+    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' || c == '_' ||
+                    c == '-' || c == ':' || c == '/' || c == '#' || c == '+';
+    if (!ok) {
+      char what[160];
+      std::snprintf(what, sizeof what, "character %zu (0x%02x%s) is not allowed: a panel id is letters, digits and . _ - : / # +",
+                    i + 1, c, c < 0x20 || c == 0x7f ? ", a control character" : c == ' ' ? ", a space" : "");
+      return what;
+    }
+  }
+  return "";
+}
+
 control::PanelJob read_inspection_record(const std::string& path, const std::vector<PanelTypeConfig>& panel_types) {
-  std::ifstream in(path);
-  if (!in) throw RecordInvalid(path + ": cannot open");
-  std::stringstream text;
-  text << in.rdbuf();
-  return parse_inspection_record(text.str(), path, panel_types);
+  std::string text;
+  try {
+    text = read_bounded_file(path, kMaxInspectionRecordBytes, "an inspection record");
+  } catch (const FileRefused& e) {
+    throw RecordInvalid(e.what());
+  }
+  return parse_inspection_record(text, path, panel_types);
 }
 
 }  // namespace markcell::host

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "markcell/common/check.hpp"
+#include "markcell/common/log_escape.hpp"
 #include "markcell/host/base_calibration_run.hpp"
 #include "markcell/host/bench.hpp"
 #include "markcell/host/capacity.hpp"
@@ -94,7 +95,7 @@ void close_interrupted(ResultsFile& results, const std::string& cell, RecordFold
   for (const auto& id : h.unfinished) {
     results.append(ResultsFile::interrupted_json(cell, id));
     std::fprintf(stderr, "<3>markcell: panel=%s result=fault reason=\"interrupted: markcell stopped after accepting its record and before its result\"\n",
-                 id.c_str());
+                 escape_log(id).c_str());
   }
 }
 
@@ -152,7 +153,7 @@ int run_command(const std::string& file, const std::string& clock_name, double s
         results->append(ResultsFile::to_json(r, config.name));
         m->acknowledge_result(r.serial);
       } catch (const std::exception& e) {
-        std::fprintf(stderr, "<3>markcell: %s (the PLC gets fault)\n", e.what());
+        std::fprintf(stderr, "<3>markcell: %s (the PLC gets fault)\n", escape_log(e.what()).c_str());
       }
     }
     int sprayed = 0, skipped = 0;
@@ -161,7 +162,7 @@ int run_command(const std::string& file, const std::string& clock_name, double s
       skipped += r.defects[static_cast<std::size_t>(i)].skipped != control::SkipReason::kNone ? 1 : 0;
     }
     std::fprintf(stderr, "%smarkcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"\n", r.fault ? "<3>" : "<6>",
-                 r.panel_id.c_str(), r.fault ? "fault" : "done", sprayed, skipped, r.reason.c_str());
+                 escape_log(r.panel_id.view()).c_str(), r.fault ? "fault" : "done", sprayed, skipped, escape_log(r.reason.view()).c_str());
     written = r.serial;
   };
 
@@ -170,37 +171,39 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     control::Fault f;
     while (cell.faults().pop(f))
       std::fprintf(stderr, "<3>markcell: fault t=%.6f code=%s source=%s detail=\"%s\"\n", to_seconds(f.time),
-                   std::string(control::to_string(f.code)).c_str(), f.source.c_str(), f.detail.c_str());
+                   std::string(control::to_string(f.code)).c_str(), escape_log(f.source.view()).c_str(),
+                   escape_log(f.detail.view()).c_str());
   };
 
   // Inspection records from the drop folder, one at a time into the marking sequence; a
   // rejected one is logged and recorded in the results file with its reason.
-  const auto take_records = [&] {
+  const auto take_records = [&](Nanos now) {
     if (!records) return;
-    std::optional<RecordEvent> ev;
+    std::vector<RecordEvent> events;
     try {
-      ev = records->poll([&](const control::PanelJob& job) {
+      events = records->poll([&](const control::PanelJob& job) {
         // The accepted line is on disk before the panel can start, so a crash from here
         // on leaves a trace the next start answers (close_interrupted).
         if (!cell.marking()->can_offer()) return false;
         if (results) results->append(ResultsFile::accepted_json(config.name, records->offering(), std::string(job.panel_id.view())));
         return cell.marking()->offer_job(job);
-      });
+      }, now);
     } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
-      std::fprintf(stderr, "<3>markcell: record folder %s: %s\n", records->folder().c_str(), e.what());
+      std::fprintf(stderr, "<3>markcell: record folder %s: %s\n", escape_log(records->folder()).c_str(), escape_log(e.what()).c_str());
       return;
     }
-    if (!ev) return;
-    if (ev->kind == RecordEvent::Kind::kAccepted) {
-      std::fprintf(stderr, "<6>markcell: record panel=%s accepted (%s)\n", ev->panel_id.c_str(), ev->file.c_str());
-      return;
-    }
-    std::fprintf(stderr, "<3>markcell: record rejected: %s (moved to %s)\n", ev->reason.c_str(), ev->file.c_str());
-    if (results) {
-      try {
-        results->append(ResultsFile::rejected_json(config.name, ev->file, ev->panel_id, ev->reason));
-      } catch (const std::exception& e) {
-        std::fprintf(stderr, "<3>markcell: %s\n", e.what());
+    for (const RecordEvent& ev : events) {
+      if (ev.kind == RecordEvent::Kind::kAccepted) {
+        std::fprintf(stderr, "<6>markcell: record panel=%s accepted (%s)\n", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str());
+        continue;
+      }
+      std::fprintf(stderr, "<3>markcell: record rejected: %s (moved to %s)\n", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str());
+      if (results) {
+        try {
+          results->append(ResultsFile::rejected_json(config.name, ev.file, ev.panel_id, ev.reason));
+        } catch (const std::exception& e) {
+          std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
+        }
       }
     }
   };
@@ -215,6 +218,36 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     });
   };
   const auto next_event_after = [&](Nanos elapsed) { return script.until_next(elapsed, kNanosPerSecond); };
+
+  // The service's state in systemd's status line, and the exit on a fault of the cell
+  // itself: a stop the PLC caused waits for its re-arm (docs/safety.md); any other stop
+  // (a lane stall, an overrun, a device or task fault) ends the process with exit 1,
+  // so that systemd's Restart=on-failure brings the cell up anew.
+  std::string status_shown;
+  int exit_code = 0;
+  const auto watch_safety = [&] {
+    control::SafeStop& stop = cell.safe_stop();
+    std::string status;
+    if (stop.done()) {
+      const control::Fault& why = stop.reason();
+      status = "safe stop (" + std::string(control::to_string(why.code)) + ", " + why.source.c_str() + ": " + why.detail.c_str() +
+               ")" + (stop.internal_fault() ? ": exiting for a restart"
+                      : config.safe_stop.rearm == RearmConfig::kNever ? ": restart the service to re-arm"
+                      : stop.rearm_requested() ? ": re-arming, the arm going home"
+                                               : ": waiting for the e-stop's release, then a cycle-enable edge");
+    } else {
+      const control::MarkingSequence* m = cell.marking();
+      status = "running";
+      if (m != nullptr) status += ": marking " + std::string(control::to_string(m->state())) + ", " + std::to_string(m->panels_completed()) + " panel(s)";
+    }
+    if (status != status_shown) {
+      if (config.watchdog.systemd) cell.notifier().status(status);
+      if (stop.done() || status_shown.rfind("safe stop", 0) == 0)
+        std::fprintf(stderr, "%smarkcell: %s\n", stop.done() ? "<4>" : "<6>", escape_log(status).c_str());
+      status_shown = status;
+    }
+    return stop.done() && stop.internal_fault();
+  };
 
   std::string stop_reason = "duration elapsed";
   if (simulated) {
@@ -231,7 +264,12 @@ int run_command(const std::string& file, const std::string& clock_name, double s
       apply_plc_events(t - start);
       collect();
       log_faults();
-      take_records();
+      take_records(t);
+      if (watch_safety()) {
+        stop_reason = "a fault of the cell";
+        exit_code = kExitRuntime;
+        break;
+      }
     }
   } else {
     const Nanos start = monotonic_now();
@@ -241,7 +279,20 @@ int run_command(const std::string& file, const std::string& clock_name, double s
       apply_plc_events(monotonic_now() - start);
       collect();
       log_faults();
-      take_records();
+      take_records(monotonic_now());
+      if (watch_safety()) {
+        stop_reason = "a fault of the cell";
+        exit_code = kExitRuntime;
+        // A stalled lane may never finish its tick: the outputs are safe already (the
+        // safe stop drove them), the results are written; the process ends here.
+        if (cell.safe_stop().reason().code == control::FaultCode::kLaneStall) {
+          std::fprintf(stderr, "<3>markcell: stopped (lane stall: %s), exit 1 without waiting for the lanes\n",
+                       escape_log(cell.safe_stop().reason().detail.view()).c_str());
+          std::fflush(stderr);
+          std::_Exit(kExitRuntime);
+        }
+        break;
+      }
       Nanos wait = seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
       if (wait <= 0) break;
       if (wait > millis(50)) wait = millis(50);  // results are written within 50 ms of a panel's end
@@ -260,14 +311,14 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     try {
       close_interrupted(*results, config.name, nullptr);
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "<3>markcell: %s\n", e.what());
+      std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
     }
   }
   std::fprintf(stderr, "<6>markcell: stopped (%s)\n", stop_reason.c_str());
   std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n"
             << cell.executive().timing_report();
   print_faults(cell.faults());
-  return 0;
+  return exit_code;
 }
 
 int calibrate_stereo_command(const std::string& folder, const std::string& board_text, double square,

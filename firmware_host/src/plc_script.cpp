@@ -1,15 +1,15 @@
 #include "markcell/host/plc_script.hpp"
 
 #include <cmath>
-#include <fstream>
 #include <sstream>
 #include <stdexcept>
+
+#include "markcell/common/bounded_file.hpp"
 
 namespace markcell::host {
 
 std::vector<PlcEvent> load_plc_script(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw std::runtime_error(path + ": cannot read the PLC script");
+  std::istringstream in(read_bounded_file(path, 1 << 20, "a PLC script"));
   std::vector<PlcEvent> events;
   std::string text;
   for (int number = 1; std::getline(in, text); ++number) {
@@ -31,6 +31,8 @@ std::vector<PlcEvent> load_plc_script(const std::string& path) {
     }
     if (used != at_text.size() || !std::isfinite(at) || at < 0)
       fail("time '" + at_text + "' is not a number of seconds >= 0");
+    // (1e10 s overflowed the nanosecond clock and fired at once.)
+    if (at > 1e6) fail("time " + at_text + " s is past the longest script (1e6 s, 11.6 days)");
     PlcEvent ev;
     ev.at = static_cast<Nanos>(std::llround(at * 1e9));
     if (!events.empty() && ev.at < events.back().at)

@@ -5,6 +5,8 @@
 
 #include <opencv2/core/eigen.hpp>
 
+#include "markcell/common/bounded_file.hpp"
+
 namespace markcell::vision {
 
 namespace {
@@ -13,15 +15,32 @@ namespace {
   throw CalibrationError(path + ": key '" + key + "': " + what);
 }
 
-cv::FileStorage open_for_read(const std::string& path) {
+}  // namespace
+
+cv::FileStorage open_yaml_storage(const std::string& path, std::size_t max_bytes, std::string_view what) {
+  std::string text;
+  try {
+    text = read_bounded_file(path, max_bytes, what);
+  } catch (const FileRefused& e) {
+    throw CalibrationError(e.what());
+  }
+  if (text.rfind("%YAML", 0) != 0)
+    throw CalibrationError(path + ": not an OpenCV FileStorage YAML file (its first line must be %YAML:1.0)");
+  if (const int line = nesting_beyond(text, 16); line > 0)
+    throw CalibrationError(path + ":" + std::to_string(line) + ": nested deeper than " + std::string(what) + " is (16 levels)");
   cv::FileStorage fs;
   try {
-    if (!fs.open(path, cv::FileStorage::READ)) throw CalibrationError(path + ": cannot open calibration file");
+    if (!fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY)) throw CalibrationError(path + ": cannot parse the calibration file");
   } catch (const cv::Exception& e) {
     throw CalibrationError(path + ": not an OpenCV FileStorage file: " + e.err);
   }
   return fs;
 }
+
+namespace {
+
+// A calibration is a few matrices: at most 1 MiB.
+cv::FileStorage open_for_read(const std::string& path) { return open_yaml_storage(path, 1 << 20, "a calibration file"); }
 
 cv::Mat read_matrix(const cv::FileStorage& fs, const std::string& path, const std::string& key, int rows, int cols) {
   const cv::FileNode node = fs[key];

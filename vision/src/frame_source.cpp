@@ -54,7 +54,17 @@ void RecordingFrameSource::loader() {
       free_cv_.wait(lock, [&] { return stop_ || loaded_ - consumed_ < kRing; });
       if (stop_) return;
     }
-    ReplayFrame f = recording_.read(i);  // decoding outside the lock
+    // Decoding outside the lock. Nothing escapes the loader's thread: whatever a frame's
+    // files do to the decoder, that frame is dropped with the reason.
+    ReplayFrame f;
+    try {
+      f = recording_.read(i);
+    } catch (const std::exception& e) {
+      f = ReplayFrame{};
+      f.index = i;
+      f.dropped = true;
+      f.problem = "frame " + std::to_string(i) + ": " + e.what();
+    }
     {
       std::lock_guard lock(mutex_);
       ring_[i % kRing] = std::move(f);

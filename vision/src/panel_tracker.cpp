@@ -6,6 +6,7 @@
 #include <opencv2/core/persistence.hpp>
 
 #include "markcell/common/check.hpp"
+#include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/geometry.hpp"
 
 namespace markcell::vision {
@@ -107,13 +108,8 @@ void save_panel_type(const std::string& path, const PanelTypeModel& m) {
 }
 
 PanelTypeModel load_panel_type(const std::string& path) {
-  cv::FileStorage fs;
-  try {
-    fs.open(path, cv::FileStorage::READ);
-  } catch (const cv::Exception& e) {
-    throw std::runtime_error(path + ": not a readable OpenCV YAML file: " + e.err);
-  }
-  if (!fs.isOpened()) throw std::runtime_error(path + ": cannot open");
+  // Templates of up to 16 MFs at two scales: 4 MiB is far more than any needs.
+  cv::FileStorage fs = open_yaml_storage(path, 4 << 20, "a panel-type file");
   auto need = [&](const char* key) {
     const cv::FileNode n = fs[key];
     if (n.empty()) throw std::runtime_error(path + ": missing key '" + key + "'");

@@ -2,12 +2,17 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "markcell/common/bounded_file.hpp"
+
+#include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <sstream>
 
+#include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -16,6 +21,55 @@ namespace markcell::vision {
 namespace fs = std::filesystem;
 
 namespace {
+
+// What a recording's files may hold at most: checked before they are read.
+constexpr std::size_t kMaxManifestBytes = 64 << 10;
+constexpr std::size_t kMaxIndexBytes = 64 << 20;      // about a million frames
+constexpr std::size_t kMaxTableBytes = 64 << 20;      // truth.csv, defects.csv
+constexpr std::size_t kMaxImageBytes = 64 << 20;      // one PNG
+constexpr int kMaxImageSide = 8192;
+// Times far enough from the int64 limits that differences of two never overflow.
+constexpr std::int64_t kMaxAbsTime = std::int64_t{1} << 62;
+
+// A path from the index, confined to the recording folder: relative, no "..", and,
+// resolved through any symbolic links, still inside it. "" when fine, else why not.
+std::string confined_problem(const fs::path& folder, const std::string& rel) {
+  const fs::path p(rel);
+  if (p.is_absolute()) return "is an absolute path (image paths are relative to the recording folder)";
+  for (const auto& part : p)
+    if (part == "..") return "leaves the recording folder (..)";
+  std::error_code ec;
+  const fs::path root = fs::weakly_canonical(folder, ec);
+  const fs::path full = fs::weakly_canonical(folder / p, ec);
+  if (ec) return "cannot be resolved";
+  const auto mismatch = std::mismatch(root.begin(), root.end(), full.begin(), full.end());
+  if (mismatch.first != root.end()) return "leads out of the recording folder (through a symbolic link)";
+  return "";
+}
+
+// The PNG header (signature and IHDR), read before anything is decoded: a file
+// declaring 60000x60000 or 16-bit samples is refused without allocating its pixels.
+std::string png_problem(const std::string& bytes, int width, int height) {
+  static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (bytes.size() < 33 || std::memcmp(bytes.data(), kSignature, 8) != 0 || bytes.compare(12, 4, "IHDR") != 0)
+    return "is not a PNG file";
+  const auto be32 = [&](std::size_t at) {
+    return (static_cast<std::uint32_t>(static_cast<unsigned char>(bytes[at])) << 24) |
+           (static_cast<std::uint32_t>(static_cast<unsigned char>(bytes[at + 1])) << 16) |
+           (static_cast<std::uint32_t>(static_cast<unsigned char>(bytes[at + 2])) << 8) |
+           static_cast<std::uint32_t>(static_cast<unsigned char>(bytes[at + 3]));
+  };
+  const std::uint32_t w = be32(16), h = be32(20);
+  const int depth = static_cast<unsigned char>(bytes[24]), colour = static_cast<unsigned char>(bytes[25]);
+  if (w != static_cast<std::uint32_t>(width) || h != static_cast<std::uint32_t>(height))
+    return "is " + std::to_string(w) + "x" + std::to_string(h) + ", the recording says " + std::to_string(width) + "x" +
+           std::to_string(height);
+  if (colour == 3) return depth <= 8 ? "" : "has a palette of " + std::to_string(depth) + "-bit indices";
+  if (depth != 8) return "is not 8-bit (" + std::to_string(depth) + " bits a sample)";
+  if (colour == 4) return "has 2 channels (grey and alpha): expected grey, RGB or RGBA";
+  if (colour != 0 && colour != 2 && colour != 6) return "has PNG colour type " + std::to_string(colour);
+  return "";
+}
 
 std::vector<std::string> split_csv(const std::string& line) {
   std::vector<std::string> out;
@@ -147,10 +201,14 @@ Recording Recording::open(const std::string& folder) {
   const fs::path dir(folder);
   const std::string manifest_path = (dir / "recording.yaml").string();
   YAML::Node m;
+  if (!fs::exists(manifest_path)) throw RecordingError(manifest_path + ": missing (is " + folder + " a recording?)");
   try {
-    m = YAML::LoadFile(manifest_path);
-  } catch (const YAML::BadFile&) {
-    throw RecordingError(manifest_path + ": missing (is " + folder + " a recording?)");
+    const std::string text = read_bounded_file(manifest_path, kMaxManifestBytes, "a recording's manifest");
+    if (const int line = nesting_beyond(text, 8); line > 0)
+      throw RecordingError(manifest_path + ":" + std::to_string(line) + ": nested deeper than a manifest is (8 levels)");
+    m = YAML::Load(text);
+  } catch (const FileRefused& e) {
+    throw RecordingError(e.what());
   } catch (const YAML::Exception& e) {
     throw RecordingError(manifest_path + ": line " + std::to_string(e.mark.line + 1) + ": " + e.msg);
   }
@@ -178,13 +236,24 @@ Recording Recording::open(const std::string& folder) {
   }
   if (r.manifest_.station != "marking" && r.manifest_.station != "inspection")
     throw RecordingError(manifest_path + ": key 'station': expected marking or inspection, got " + r.manifest_.station);
-  if (r.manifest_.frame_rate_hz <= 0) throw RecordingError(manifest_path + ": key 'frame_rate_hz': must be positive");
-  if (r.manifest_.image_width <= 0 || r.manifest_.image_height <= 0)
-    throw RecordingError(manifest_path + ": keys 'image_width', 'image_height': must be positive");
+  if (!std::isfinite(r.manifest_.frame_rate_hz) || !(r.manifest_.frame_rate_hz > 0) || r.manifest_.frame_rate_hz > 10'000)
+    throw RecordingError(manifest_path + ": key 'frame_rate_hz': must be a number in (0, 10000], got " +
+                         need("frame_rate_hz").Scalar());
+  if (r.manifest_.image_width <= 0 || r.manifest_.image_height <= 0 || r.manifest_.image_width > kMaxImageSide ||
+      r.manifest_.image_height > kMaxImageSide)
+    throw RecordingError(manifest_path + ": keys 'image_width', 'image_height': must be in [1, " + std::to_string(kMaxImageSide) +
+                         "], got " + std::to_string(r.manifest_.image_width) + "x" + std::to_string(r.manifest_.image_height));
+  if (const std::string why = confined_problem(dir, r.manifest_.calibration); !why.empty())
+    throw RecordingError(manifest_path + ": key 'calibration': '" + r.manifest_.calibration + "' " + why);
 
   const std::string index_path = (dir / "frames.csv").string();
-  std::ifstream in(index_path);
-  if (!in) throw RecordingError(index_path + ": missing");
+  if (!fs::exists(index_path)) throw RecordingError(index_path + ": missing");
+  std::istringstream in;
+  try {
+    in.str(read_bounded_file(index_path, kMaxIndexBytes, "a recording's frame index"));
+  } catch (const FileRefused& e) {
+    throw RecordingError(e.what());
+  }
   std::string line;
   if (!std::getline(in, line) || strip_cr(line) != "seq,time_ns,left,right")
     throw RecordingError(index_path + ":1: expected the header seq,time_ns,left,right");
@@ -206,15 +275,34 @@ Recording Recording::open(const std::string& folder) {
       r.index_problems_.push_back(where + "seq and time_ns must be integers and both image paths present");
       continue;
     }
+    if (t > kMaxAbsTime || t < -kMaxAbsTime) {
+      r.index_problems_.push_back(where + "time_ns " + f[1] + " is out of range (at most 2^62 ns from 0)");
+      continue;
+    }
     e.time = t;
     e.left = f[2];
     e.right = f[3];
+    std::string why;
+    for (const std::string* rel : {&e.left, &e.right})
+      if (why.empty()) {
+        why = confined_problem(dir, *rel);
+        if (!why.empty()) why = "image path '" + *rel + "' " + why;
+      }
+    if (!why.empty()) {
+      r.index_problems_.push_back(where + why);
+      continue;
+    }
     r.index_.push_back(e);
   }
 
   if (r.manifest_.has_truth) {
-    std::ifstream tin(dir / "truth.csv");
-    if (!tin) throw RecordingError((dir / "truth.csv").string() + ": missing (the manifest names it)");
+    if (!fs::exists(dir / "truth.csv")) throw RecordingError((dir / "truth.csv").string() + ": missing (the manifest names it)");
+    std::istringstream tin;
+    try {
+      tin.str(read_bounded_file((dir / "truth.csv").string(), kMaxTableBytes, "a recording's truth"));
+    } catch (const FileRefused& e) {
+      throw RecordingError(e.what());
+    }
     std::getline(tin, line);
     number = 1;
     while (std::getline(tin, line)) {
@@ -233,8 +321,13 @@ Recording Recording::open(const std::string& folder) {
     }
   }
   if (r.manifest_.has_defects) {
-    std::ifstream din(dir / "defects.csv");
-    if (!din) throw RecordingError((dir / "defects.csv").string() + ": missing (the manifest names it)");
+    if (!fs::exists(dir / "defects.csv")) throw RecordingError((dir / "defects.csv").string() + ": missing (the manifest names it)");
+    std::istringstream din;
+    try {
+      din.str(read_bounded_file((dir / "defects.csv").string(), kMaxTableBytes, "a recording's defects"));
+    } catch (const FileRefused& e) {
+      throw RecordingError(e.what());
+    }
     std::getline(din, line);
     number = 1;
     while (std::getline(din, line)) {
@@ -285,13 +378,32 @@ ReplayFrame Recording::read(std::size_t i) const {
   }
   const auto load = [&](const std::string& rel, const char* side, cv::Mat& out) {
     const std::string path = (fs::path(folder_) / rel).string();
-    cv::Mat img = cv::imread(path, cv::IMREAD_UNCHANGED);
-    if (img.empty()) {
-      f.problem = name + side + " image " + rel + " is missing or unreadable";
+    std::string bytes;
+    try {
+      bytes = read_bounded_file(path, kMaxImageBytes, "a recorded image");
+    } catch (const FileRefused& refused) {
+      std::string why = refused.what();  // "PATH: what": the path is the folder's and rel
+      if (why.rfind(path + ": ", 0) == 0) why.erase(0, path.size() + 2);
+      f.problem = name + side + " image " + rel + " is missing or unreadable (" + why + ")";
       return false;
     }
-    if (img.depth() != CV_8U) {
-      f.problem = name + side + " image " + rel + " is not 8-bit";
+    if (const std::string why = png_problem(bytes, manifest_.image_width, manifest_.image_height); !why.empty()) {
+      f.problem = name + side + " image " + rel + " " + why;
+      return false;
+    }
+    cv::Mat img;
+    try {
+      img = cv::imdecode(cv::Mat(1, static_cast<int>(bytes.size()), CV_8U, bytes.data()), cv::IMREAD_UNCHANGED);
+    } catch (const cv::Exception& decode) {
+      f.problem = name + side + " image " + rel + " could not be decoded: " + decode.err;
+      return false;
+    }
+    if (img.empty()) {
+      f.problem = name + side + " image " + rel + " is unreadable (a damaged PNG)";
+      return false;
+    }
+    if (img.depth() != CV_8U || (img.channels() != 1 && img.channels() != 3 && img.channels() != 4)) {
+      f.problem = name + side + " image " + rel + " is not 8-bit grey, RGB or RGBA";
       return false;
     }
     if (img.channels() == 3) cv::cvtColor(img, img, cv::COLOR_BGR2GRAY);

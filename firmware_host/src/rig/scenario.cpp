@@ -199,6 +199,7 @@ std::size_t generate_recording(const Scenario& s, const std::string& folder, con
     out << "  - id: " << d.id << "\n    points:\n";
     for (const auto& p : d.points_SL) out << "      - [" << p.x() << ", " << p.y() << ", " << p.z() << "]\n";
   }
+  out << "...\n";  // the end of the record: a drop folder takes only a finished one
   return written;
 }
 

@@ -22,6 +22,8 @@ enum class FaultCode : std::uint8_t {
   kOperatorStop,     // e-stop, line stop, PLC fault request
   kShutdown,         // SIGTERM / SIGINT: the orderly stop also goes through safe stop
   kFrameDropped,     // a camera pair could not be used (the detail names the frame)
+  kInputGlitch,      // a PLC input pulsed shorter than its filter (ignored, reported)
+  kRearm,            // the cell re-armed after a safe stop the PLC caused (or was refused)
 };
 std::string_view to_string(FaultCode code);
 
@@ -66,6 +68,12 @@ class SafeOutput {
 // The one safe-stop path used by every fault. The first trigger wins: it records the
 // reason, puts every registered output in its safe state (in registration order) and
 // latches. Later triggers are still recorded in the fault log.
+//
+// Re-arming (docs/safety.md): only a stop the PLC caused (kOperatorStop) and during
+// which nothing else went wrong is recoverable. The PLC asks (request_rearm, from the
+// plc_io task: e-stop released, then its reset edge); the arm link's task sends the arm
+// home and, once it reports home, re-arms (rearm). Any other stop stays latched until
+// the process restarts: the service exits non-zero and systemd restarts it.
 class SafeStop {
  public:
   static constexpr int kMaxOutputs = 16;
@@ -80,6 +88,22 @@ class SafeStop {
   bool done() const { return state_.load(std::memory_order_acquire) == kStopped; }
   const Fault& reason() const { return reason_; }
   FaultLog& log() { return log_; }
+  // Stops performed since start (a new one after each re-arm).
+  std::uint64_t stops() const { return stops_.load(std::memory_order_acquire); }
+  // The stop in force can be re-armed: the PLC caused it and no other trigger came since.
+  bool recoverable() const {
+    return done() && reason_.code == FaultCode::kOperatorStop && !unrecoverable_.load(std::memory_order_acquire);
+  }
+  // A trigger other than the PLC's or the shutdown's came since start: the process must restart.
+  bool internal_fault() const { return unrecoverable_.load(std::memory_order_acquire); }
+  void request_rearm() noexcept {
+    if (recoverable()) rearm_requested_.store(true, std::memory_order_release);
+  }
+  bool rearm_requested() const { return rearm_requested_.load(std::memory_order_acquire); }
+  void cancel_rearm(Nanos time, std::string_view detail) noexcept;
+  // Back to running (the outputs stay in their safe state until their tasks drive them):
+  // true when re-armed; false when the stop is not recoverable (any more).
+  bool rearm(Nanos time, std::string_view detail) noexcept;
 
  private:
   enum : int { kIdle = 0, kStopping = 1, kStopped = 2 };
@@ -87,6 +111,9 @@ class SafeStop {
   std::array<SafeOutput*, kMaxOutputs> outputs_{};
   int output_count_ = 0;
   std::atomic<int> state_{kIdle};
+  std::atomic<std::uint64_t> stops_{0};
+  std::atomic<bool> unrecoverable_{false};
+  std::atomic<bool> rearm_requested_{false};
   Fault reason_;
 };
 

@@ -65,6 +65,7 @@ enum class SkipReason : std::uint8_t {
   kPlanned,           // the plan: the line carries it out of reach before its turn
   kNoPanel,           // the record expired: its panel never came
   kPlacement,         // the inter-calibration never placed it surely enough (MFs too few, too close)
+  kCutShort,          // its pulse was cut short: panel present dropped (or glitched) during it
 };
 std::string_view to_string(SkipReason r);
 
@@ -284,6 +285,8 @@ class MarkingSequence {
   int poses_since_intercal_ = 0;
   int intercal_mfs_ = 0;                // MFs the inter-calibration in use was fitted to
   Nanos present_since_ = -1;  // panel present (cycle enabled) in idle without a record
+  std::uint64_t drops_at_start_ = 0;  // the PLC filter's panel-present falls when the panel started
+  bool panel_left(const PlcInputs& plc) const { return !plc.panel_present || plc.panel_present_drops != drops_at_start_; }
   Nanos record_since_ = -1;   // a record waiting in idle without a panel
   bool fault_until_next_panel_ = false;  // an expired record's fault, held with no panel to release it
   bool planned_ = false;

@@ -5,6 +5,11 @@
 // after it opened. The timing resolution is one base tick, and a late tick delays a
 // pulse without shortening it. A safe stop closes it at once and
 // refuses new pulses. Every pulse is recorded with its requested and actual times.
+//
+// Interlocks (docs/safety.md): the valve is open only while its permit holds (the PLC's
+// panel present, unfiltered: PlcInputs::spray_permitted) and nobody cancelled the pulse
+// (the marking sequence does when its panel fails). Either closes it at its next run,
+// within one control tick, and the pulse is recorded as cut short.
 #include <array>
 #include <cstdint>
 
@@ -18,10 +23,10 @@ struct SprayPulse {
   Nanos requested_length = 0;
   Nanos opened = -1;  // -1: not (yet) opened
   Nanos closed = -1;
-  bool cut_short = false;  // closed early by a safe stop
+  bool cut_short = false;  // closed early (safe stop, panel present dropped, cancelled) or never opened
 };
 
-enum class PulseRequest : std::uint8_t { kAccepted, kBusy, kBadLength, kSafeStopped };
+enum class PulseRequest : std::uint8_t { kAccepted, kBusy, kBadLength, kSafeStopped, kNotPermitted };
 
 class SprayValve {
  public:
@@ -31,6 +36,10 @@ class SprayValve {
   // From any task on the control lane (not thread-safe across lanes by design: the
   // marking sequence that asks for pulses runs on the same lane).
   PulseRequest request(Nanos start, Nanos length, bool safe_stopped) noexcept;
+  // The permit read at every run (before start(): the PLC's spray_permitted); null: none.
+  void set_permit(const bool* permit) { permit_ = permit; }
+  // Closes the valve now and drops a pending pulse (recorded as cut short).
+  void cancel(Nanos now) noexcept;
   TaskResult step(const TaskContext& ctx) noexcept;
   static TaskResult task(TaskContext& ctx, void* self) { return static_cast<SprayValve*>(self)->step(ctx); }
   bool open() const { return open_; }
@@ -43,9 +52,11 @@ class SprayValve {
 
  private:
   void set(bool open) noexcept;
+  void finish() noexcept;
   drivers::GpioLines& lines_;
   int line_;
   Nanos min_, max_;
+  const bool* permit_ = nullptr;
   bool pending_ = false;
   bool open_ = false;
   std::array<SprayPulse, kHistory> history_{};

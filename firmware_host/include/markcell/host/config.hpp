@@ -14,6 +14,11 @@
 
 namespace markcell::host {
 
+// What the loader reads at most (docs/operation.md): a larger file, or one nested
+// deeper, is refused before it is parsed.
+inline constexpr std::size_t kMaxConfigBytes = 1 << 20;
+inline constexpr int kMaxYamlNesting = 64;
+
 struct ConfigError {
   std::string file;
   int line = 0;    // 1-based; 0 when the position is unknown
@@ -51,6 +56,10 @@ struct GpioConfig {
   bool simulated = true;
   std::string chip;        // chip name (gpiochip0), label, or path under /dev
   std::array<GpioLineConfig, kLineRoleCount> lines;
+  // The PLC inputs' debounce on their edges' times (plc_io.hpp, docs/safety.md): a
+  // pulse shorter than this is ignored, a level that lasts it counts. The valve's own
+  // interlock on panel present is not filtered.
+  Nanos input_filter = millis(3);
 };
 
 enum class ArmTransport : std::uint8_t { kSimulated, kCan, kSerial };
@@ -124,8 +133,13 @@ struct WatchdogConfig {
 enum class ArmSafeAction : std::uint8_t { kHold, kHome };
 std::string_view to_string(ArmSafeAction a);
 
+enum class RearmConfig : std::uint8_t { kCycleEnable, kNever };
+
 struct SafeStopConfig {
   ArmSafeAction arm = ArmSafeAction::kHold;
+  // After an e-stop: the e-stop released, then a rising edge of cycle enable re-arms
+  // (the arm sent home first), or `never` (a restart of the service).
+  RearmConfig rearm = RearmConfig::kCycleEnable;
   bool plc_fault_line = true;  // raise the PLC fault output on every safe stop
 };
 

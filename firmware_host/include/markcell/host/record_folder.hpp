@@ -2,12 +2,23 @@
 // The drop folder through which inspection records reach the cell (for now; the format
 // is vision/RECORDING.md's inspection.yaml). The inspection station writes each panel's
 // record as NAME.yaml, written elsewhere on the same filesystem (or as NAME.yaml.part)
-// and renamed into place, so the cell never reads half a file. Records are taken in name
-// order, one at a time: a valid one is offered to the marking sequence and moved to
-// accepted/ once taken; a bad one (any field, or a panel id seen before) is moved to
-// rejected/ with NAME.yaml.reason beside it, and never half-used.
+// and renamed into place. Records are taken in name order, one at a time: a valid one
+// is offered to the marking sequence and moved to accepted/ once taken; a bad one (any
+// field, a panel id seen before, a symbolic link, a FIFO, a directory, a file over the
+// size limit) is moved to rejected/ with NAME.yaml.reason beside it, and never
+// half-used.
+//
+// A record is complete by construction: its last line is YAML's end-of-document marker
+// `...`, and it is read only once its size and modification time have not changed
+// between two polls. One without the marker waits (written in place, still being
+// written) for `incomplete_wait`, then is rejected. A record that waits for the
+// marking sequence is kept parsed, not read again on every poll. Bad records ahead of a
+// valid one are rejected in the same poll (up to kRejectsPerPoll), so junk never holds
+// a record back past its panel.
 //
 // Off the real-time path: the service's main thread polls it.
+#include <sys/types.h>
+
 #include <deque>
 #include <functional>
 #include <optional>
@@ -28,25 +39,46 @@ struct RecordEvent {
 
 class RecordFolder {
  public:
+  static constexpr std::size_t kMaxRecordBytes = 1 << 20;  // an inspection record, at most (kMaxInspectionRecordBytes)
+  static constexpr int kRejectsPerPoll = 64;
+  static constexpr std::size_t kMaxEntriesPerPoll = 100'000;  // directory entries looked at in one poll
   // Creates accepted/ and rejected/ inside `folder` (which must exist).
-  RecordFolder(std::string folder, std::vector<PanelTypeConfig> panel_types);
-  // One look at the folder: the first record by name is read and validated; a valid one
-  // is passed to `offer`, which returns false while a record still waits (it stays for
-  // the next poll). Nothing happened: nullopt.
-  std::optional<RecordEvent> poll(const std::function<bool(const control::PanelJob&)>& offer);
+  RecordFolder(std::string folder, std::vector<PanelTypeConfig> panel_types, Nanos incomplete_wait = seconds(10));
+  // One look at the folder at `now` (any monotonic clock): records ahead of the first
+  // valid one that are bad are rejected; the first valid one is passed to `offer`, which
+  // returns false while a record still waits (it stays, parsed, for the next poll).
+  std::vector<RecordEvent> poll(const std::function<bool(const control::PanelJob&)>& offer, Nanos now);
   const std::string& folder() const { return folder_; }
   // A panel id received before this start (from the results file): a record with it again
   // is a duplicate.
   void remember(const std::string& panel_id);
-  // Inside `offer`: where the record being offered goes once taken (accepted/NAME.yaml).
+  // Inside `offer`: where the record being offered goes once taken (accepted/NAME.yaml,
+  // or NAME.N.yaml when a record of that name was accepted before).
   const std::string& offering() const { return offering_; }
 
  private:
+  struct Seen {  // a record's identity and size as the last poll saw it
+    std::string name;
+    dev_t dev = 0;
+    ino_t ino = 0;
+    off_t size = -1;
+    long long mtime_ns = 0;
+    Nanos first_stable = -1;  // when it was first seen unchanged (waiting for its marker)
+    bool operator==(const Seen& o) const {
+      return name == o.name && dev == o.dev && ino == o.ino && size == o.size && mtime_ns == o.mtime_ns;
+    }
+  };
+  RecordEvent reject(const std::string& name, const std::string& reason, const std::string& panel_id = "");
+  std::string unique_in(const char* sub, const std::string& name) const;
   static constexpr std::size_t kRecentIds = 4096;  // duplicate panel ids are caught among these
   std::string folder_;
   std::vector<PanelTypeConfig> panel_types_;
+  Nanos incomplete_wait_;
   std::deque<std::string> recent_ids_;
   std::string offering_;
+  std::vector<Seen> previous_;               // the candidates the last poll saw, in name order
+  std::optional<Seen> parsed_of_;            // the record parsed_ holds
+  std::optional<control::PanelJob> parsed_;  // valid, waiting for the sequence
 };
 
 }  // namespace markcell::host

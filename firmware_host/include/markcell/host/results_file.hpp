@@ -4,6 +4,13 @@
 // PLC done (or fault). Append-only: a crash can at worst cut the last line short, never
 // touch an earlier one. Opening ends a torn last line with a newline, so readers skip
 // exactly the lines that do not parse and every later result stands on a line of its own.
+//
+// Each append is all or nothing as a reader sees it (docs/operation.md): a write the disk
+// refuses halfway (full, quota) is truncated back to the last complete line, and a line
+// left torn all the same is ended before the next is appended. Before each append the
+// path is checked to still be this file (device, inode, not unlinked): a results file
+// removed or replaced by something else is a fault, not a silent write into a deleted
+// inode; one rotated away (a new regular file at the path) is reopened.
 #include <string>
 #include <vector>
 
@@ -19,7 +26,8 @@ class ResultsFile {
   ~ResultsFile();
   ResultsFile(const ResultsFile&) = delete;
   ResultsFile& operator=(const ResultsFile&) = delete;
-  // Appends and syncs one line; throws naming the path when the disk refuses.
+  // Appends and syncs one line; throws naming the path when the disk refuses (the file is
+  // then as it was before) or the file is gone.
   void append(const std::string& line);
   const std::string& path() const { return path_; }
 
@@ -43,6 +51,9 @@ class ResultsFile {
   History history() const;
 
  private:
+  void open_file();
+  void check_still_there();
+  void end_torn_line();
   std::string path_;
   int fd_ = -1;
 };

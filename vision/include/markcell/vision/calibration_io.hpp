@@ -10,6 +10,7 @@
 //   X_Base_CamR                 4x4 homogeneous rigid transform (metres)
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 #include <Eigen/Geometry>
 #include <opencv2/core.hpp>
@@ -34,6 +35,12 @@ struct StereoCalibration {
   Eigen::Isometry3d X_CamR_CamL = Eigen::Isometry3d::Identity();
   double baseline() const { return X_CamR_CamL.translation().norm(); }
 };
+
+// An OpenCV FileStorage YAML file from outside (a calibration, a panel type): only a
+// regular file of at most `max_bytes`, starting %YAML, not nested deeper than 16 levels
+// (50,000 overflowed FileStorage's stack), parsed from the very bytes checked. Throws
+// CalibrationError naming the file and what is wrong.
+cv::FileStorage open_yaml_storage(const std::string& path, std::size_t max_bytes, std::string_view what);
 
 // Throw CalibrationError naming the file and the key that is missing or malformed.
 StereoCalibration load_stereo_calibration(const std::string& path);

@@ -1014,3 +1014,50 @@ TEST_CASE("replay with a scripted PLC: panel present dropping mid-pulse closes t
   CHECK(json.find("its spray was cut short (panel present dropped during the pulse)") != std::string::npos);
   CHECK(json.find("panel left during the marking sequence") != std::string::npos);
 }
+
+TEST_CASE("run as the service: a fault of the cell itself ends it with exit 1 (for systemd to restart), an e-stop does not") {
+  test::TempDir dir;
+  const ServiceCell s = service_cell(dir, "0.0 plc_panel_present 0\n");
+  // The vision task over a budget it cannot keep, with on_overrun: safe_stop.
+  std::string text = read_file(s.config.string());
+  const std::string vision = "vision:      {lane: vision,  period_us: 33000, phase_us: 0, budget_us: 30000, on_overrun: log}";
+  REQUIRE(text.find(vision) != std::string::npos);
+  std::ofstream(s.config.string()) << std::string(text).replace(
+      text.find(vision), vision.size(), "vision:      {lane: vision,  period_us: 33000, phase_us: 0, budget_us: 50, on_overrun: safe_stop}");
+  const auto r = run_command(kMarkcell + " run --config " + s.config.string() + " --clock real --seconds 20");
+  INFO(r.output);
+  CHECK(r.exit_code == 1);
+  CHECK(r.output.find("<4>markcell: safe stop (task_overrun, vision: ran ") != std::string::npos);
+  CHECK(r.output.find("): exiting for a restart") != std::string::npos);
+  CHECK(r.output.find("<6>markcell: stopped (a fault of the cell)") != std::string::npos);
+
+  // An e-stop, released and reset by the PLC: the cell runs on, and says so.
+  std::ofstream(s.config.string()) << text;
+  std::ofstream(s.script.string()) << "0.5 plc_estop 1\n1.0 plc_estop 0\n1.5 plc_cycle_enable 0\n1.6 plc_cycle_enable 1\n";
+  const auto e = run_command(kMarkcell + " run --config " + s.config.string() + " --clock sim --seconds 4 --plc-script " +
+                             s.script.string());
+  INFO(e.output);
+  CHECK(e.exit_code == 0);
+  CHECK(e.output.find("<4>markcell: safe stop (operator_stop, plc_estop: e-stop input active): waiting for the e-stop's release, "
+                      "then a cycle-enable edge") != std::string::npos);
+  CHECK(e.output.find("code=rearm source=safe_stop detail=\"e-stop released, reset by cycle enable, arm at home\"") !=
+        std::string::npos);
+  CHECK(e.output.find("<6>markcell: running: marking idle, 0 panel(s)") != std::string::npos);
+  CHECK(e.output.find("<6>markcell: stopped (duration elapsed)") != std::string::npos);
+}
+
+TEST_CASE("a replay shows the frame index lines it refused, in its output and in report.json") {
+  test::TempDir dir;
+  const auto rec = dir.path() / "recording";
+  std::filesystem::copy(sim_dir() + "/recording", rec, std::filesystem::copy_options::recursive);
+  std::ofstream(rec / "frames.csv", std::ios::app) << "99,notatime,left/x.png,right/x.png\n999,1,/etc/passwd,right/x.png\n";
+  const std::string out = (dir.path() / "out").string();
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() + " --one-predictor --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  CHECK(r.output.find("frames.csv: 2 line(s) refused, not replayed:") != std::string::npos);
+  CHECK(r.output.find("seq and time_ns must be integers and both image paths present") != std::string::npos);
+  CHECK(r.output.find("image path '/etc/passwd' is an absolute path") != std::string::npos);
+  const std::string json = read_file(out + "/report.json");
+  CHECK(json.find("\"index_problems\": [\"frames.csv:") != std::string::npos);
+}

@@ -400,3 +400,23 @@ TEST_CASE("calibrate-stereo recovers a known rig from rendered chessboard views"
   CHECK(fail.exit_code == 1);
   CHECK(fail.output.find("only 0 usable view(s), at least 6 needed; a_.png: board not found in the left image") != std::string::npos);
 }
+
+TEST_CASE("an absurd calibration is refused naming the key: a baseline of 1e300 m, a focal length of 1e-300 px, a nesting bomb, a FIFO") {
+  test::TempDir dir;
+  StereoCalibration c = paper_rig();
+  const std::string path = (dir.path() / "stereo.yaml").string();
+  c.X_CamR_CamL.translation() *= 1e300;
+  save_stereo_calibration(path, c);
+  CHECK_THROWS_WITH(load_stereo_calibration(path), Catch::Contains(path + ": key 'T': baseline ") &&
+                                                       Catch::Contains("m: expected within [0.001, 100] m (T is in metres)"));
+  c = paper_rig();
+  c.left.K(0, 0) = 1e-300;
+  save_stereo_calibration(path, c);
+  CHECK_THROWS_WITH(load_stereo_calibration(path), Catch::Contains(path + ": key 'K1': focal lengths 1e-300, ") &&
+                                                       Catch::Contains("px: expected within [1, 1e6] px"));
+  std::ofstream(path) << "%YAML:1.0\n---\nK1: " << std::string(50'000, '[') << "\n";
+  CHECK_THROWS_WITH(load_stereo_calibration(path), path + ":3: nested deeper than a calibration file is (16 levels)");
+  const std::string fifo = (dir.path() / "fifo.yaml").string();
+  REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);
+  CHECK_THROWS_WITH(load_stereo_calibration(fifo), fifo + ": a FIFO, not read (a calibration file must be a regular file)");
+}

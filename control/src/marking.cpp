@@ -39,7 +39,7 @@ std::string_view to_string(MarkingState s) {
 
 MarkingSequence::MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve,
                                  drivers::GpioLines& lines, const PlcLineMap& plc, const PlcIo& plc_io,
-                                 TripleBuffer<vision::PoseEstimate>& estimates,
+                                 TripleBuffer<MarkingEstimate>& estimates,
                                  TripleBuffer<TrackerRequest>& tracker_requests)
     : params_(params),
       arm_(arm),
@@ -68,7 +68,7 @@ Eigen::Isometry3d MarkingSequence::nozzle_in_base(const Eigen::Isometry3d& X_Cam
 
 TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
   const Nanos now = ctx.now();
-  if (estimates_.update()) on_estimate(estimates_.read(), now);
+  if (estimates_.update()) on_estimate(estimates_.read().pose, estimates_.read().fits, now);
   if (ctx.safe_stopped() && state_ != MarkingState::kReporting) {
     // The safe stop has closed the valve and held the arm; the panel ends here, and its
     // result (a fault, with what was and was not sprayed) is recorded all the same.
@@ -196,6 +196,7 @@ void MarkingSequence::take_job(Nanos now) {
 
 void MarkingSequence::start_panel(Nanos now) {
   present_since_ = -1;
+  ++job_serial_;
   drops_at_start_ = plc_io_.inputs().panel_present_drops;
   take_job(now);
   set_plc(plc_.done, false);
@@ -217,17 +218,41 @@ void MarkingSequence::start_panel(Nanos now) {
   state_ = MarkingState::kAcquire;
 }
 
+void fit_pose_to_record(const TrackerRequest& job, const vision::PoseEstimate& e, const IntercalibrationLimits& limits,
+                        PoseFits& out) noexcept {
+  out.job_serial = job.job_serial;
+  const auto n = static_cast<std::size_t>(std::clamp(std::min(job.mf_count, e.count), 0, vision::kMaxMacroFeatures));
+  out.known = intercalibrate(std::span(job.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
+                             std::span(e.reference_known.data(), n), limits);
+  out.measured_mask.fill(false);
+  out.measured_count = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    out.measured_mask[i] = e.reference_known[i] && e.reference_observed[i] >= kMeasuredFrames;
+    out.measured_count += out.measured_mask[i] ? 1 : 0;
+  }
+  out.measured = intercalibrate(std::span(job.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
+                                std::span(out.measured_mask.data(), n), limits);
+}
+
+void MarkingSequence::write_tracker_request(TrackerRequest& req) const {
+  req.reset_serial = reset_serial_;
+  req.panel_type = job_.panel_type_index;
+  req.job_serial = job_serial_;
+  req.mf_count = job_.mf_count;
+  req.mfs_SL = job_.mfs_SL;
+}
+
 void MarkingSequence::request_search() {
   // Ask the vision lane for a fresh search; poses of the previous P no longer count.
   TrackerRequest& req = tracker_requests_.write_slot();
   req = TrackerRequest{};
-  req.reset_serial = ++reset_serial_;
-  req.panel_type = job_.panel_type_index;
+  ++reset_serial_;
+  write_tracker_request(req);
   tracker_requests_.publish();
   serial_at_reset_ = latest_serial_;
 }
 
-void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
+void MarkingSequence::on_estimate(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now) {
   latest_serial_ = std::max(latest_serial_, e.reference_serial);
   const auto marking = [this] {
     return state_ == MarkingState::kAcquire || state_ == MarkingState::kHold || state_ == MarkingState::kApproach ||
@@ -235,12 +260,13 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, Nanos now) {
   };
   if (!marking()) return;
   if (e.reference_serial <= serial_at_reset_ || !e.has_pose()) return;
+  if (fits.job_serial != job_serial_) return;  // (made before the vision lane had this panel's record)
   if (e.reference_serial != intercal_serial_) {
     // A new P (the first search, or a re-search after the panel was lost): pair its MFs
     // with the record again; the tool poses live in P.
-    if (!intercalibrate_panel(e, now) || !marking()) return;
+    if (!intercalibrate_panel(e, fits, now) || !marking()) return;
   } else {
-    refine_intercalibration(e);
+    refine_intercalibration(e, fits);
   }
   if (defect_ >= 0) {
     PredictionSample& s = prediction_log_[prediction_count_ % kPredictionLog];
@@ -364,7 +390,7 @@ void MarkingSequence::hold(Nanos now, int mfs_in_view) {
   if (every_defect_placed() || now >= hold_until_ || hold_fewer_mfs_ >= 3) next_defect(now);
 }
 
-bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e, Nanos now) {
+bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now) {
   const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
   if (panel_frame_count_ < kPanelFrameLog) {
     PanelFrameRecord& frame = panel_frame_log_[panel_frame_count_++];
@@ -373,8 +399,7 @@ bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e, Nanos 
     frame.mfs_P = e.reference_P;
     frame.found = e.reference_known;
   }
-  const Intercalibration fit = intercalibrate(std::span(job_.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
-                                              std::span(e.reference_known.data(), n), params_.intercalibration);
+  const Intercalibration& fit = fits.known;  // made on the vision lane with this pose
   intercal_serial_ = e.reference_serial;
   if (!fit.ok()) {
     // A search that found corners the record does not support (a person or the arm in
@@ -426,8 +451,7 @@ bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e, Nanos 
 void MarkingSequence::place_unmeasured_mfs(const vision::PoseEstimate& e, const Intercalibration& ic) {
   const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
   TrackerRequest& req = tracker_requests_.write_slot();
-  req.reset_serial = reset_serial_;
-  req.panel_type = job_.panel_type_index;
+  write_tracker_request(req);
   req.reference_serial = e.reference_serial;
   req.placement_serial = ++placement_serial_;
   req.known.fill(false);
@@ -451,29 +475,19 @@ void MarkingSequence::place_tools(const Intercalibration& ic) {
   }
 }
 
-void MarkingSequence::refine_intercalibration(const vision::PoseEstimate& e) {
+void MarkingSequence::refine_intercalibration(const vision::PoseEstimate& e, const PoseFits& fits) {
   // A panel that enters the view shows a few MFs on its leading edge when P is set up;
   // fitted to those alone, the inter-calibration's rotation error is levered out to the
-  // defects beyond them. The other MFs come into view, are
-  // tracked, and their positions in P settle; once more of them have been measured than
-  // the fit in use had, it is made again from those, and the tool poses with it (their
-  // order stays: the sequence is under way). At most once per MF, bounded.
-  constexpr int kMeasuredFrames = 10;  // frames an MF's position in P averages before it counts
-  const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
-  std::array<bool, vision::kMaxMacroFeatures> measured{};
-  int count = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    measured[i] = e.reference_known[i] && e.reference_observed[i] >= kMeasuredFrames;
-    count += measured[i] ? 1 : 0;
-  }
-  if (count <= intercal_mfs_) return;
-  const Intercalibration ic = intercalibrate(std::span(job_.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
-                                             std::span(measured.data(), n), params_.intercalibration);
-  intercal_mfs_ = count;  // tried with these; a failed refit keeps the fit in use
-  if (!ic.ok()) return;
-  result_.intercalibration = ic;
-  place_tools(ic);
-  place_unmeasured_mfs(e, ic);
+  // defects beyond them. The other MFs come into view, are tracked, and their positions
+  // in P settle (kMeasuredFrames); once more of them have been measured than the fit in
+  // use had, the vision lane's fit over those is taken, and the tool poses with it
+  // (their order stays: the sequence is under way). At most once per MF, bounded.
+  if (fits.measured_count <= intercal_mfs_) return;
+  intercal_mfs_ = fits.measured_count;  // tried with these; a failed refit keeps the fit in use
+  if (!fits.measured.ok()) return;
+  result_.intercalibration = fits.measured;
+  place_tools(result_.intercalibration);
+  place_unmeasured_mfs(e, result_.intercalibration);
 }
 
 bool MarkingSequence::placed(int defect) const {

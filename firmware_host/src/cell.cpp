@@ -85,6 +85,9 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
   auto* v = static_cast<VisionTask*>(self);
   if (v->requests->update()) {
     const control::TrackerRequest& r = v->requests->read();
+    v->job.job_serial = r.job_serial;
+    v->job.mf_count = r.mf_count;
+    v->job.mfs_SL = r.mfs_SL;
     if (r.reset_serial != v->reset_seen) {
       v->reset_seen = r.reset_serial;
       v->active = std::clamp(r.panel_type, 0, static_cast<int>(v->trackers.size()) - 1);
@@ -130,7 +133,11 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
     v->stats.arm_hid_pairs += hidden > 0 ? 1 : 0;
     v->stats.arm_hidden_mfs += static_cast<std::uint64_t>(hidden);
   }
-  v->estimates->write(e);
+  control::MarkingEstimate& out = v->estimates->write_slot();
+  out.pose = e;
+  out.fits = control::PoseFits{};
+  if (v->job.job_serial != 0 && e.has_pose()) control::fit_pose_to_record(v->job, e, v->limits, out.fits);
+  v->estimates->publish();
   return control::TaskResult::kOk;
 }
 
@@ -229,7 +236,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
                        [&](const control::TaskSpec& t) { return t.name == name; });
   };
   if (!config.calibration.base.empty()) X_Base_CamR_ = vision::load_pose(config.calibration.base, "X_Base_CamR");
-  estimates_ = std::make_unique<TripleBuffer<vision::PoseEstimate>>();
+  estimates_ = std::make_unique<TripleBuffer<control::MarkingEstimate>>();
   tracker_requests_ = std::make_unique<TripleBuffer<control::TrackerRequest>>();
   if (has_task("vision")) {
     rig_ = std::make_unique<vision::StereoRig>(vision::load_stereo_calibration(config.calibration.stereo));
@@ -300,6 +307,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
                                              config.marking.line_direction[2]).normalized();
     mp.intercalibration.max_abs_error = config.marking.intercalibration_limit_mm / 1000.0;
     mp.intercalibration.max_placement_sigma = config.marking.placement_limit_mm / 1000.0;
+    if (vision_) vision_->limits = mp.intercalibration;  // its fits are the marking sequence's
     mp.placement_hold = config.marking.placement_hold;
     mp.predictor.kind = config.marking.predictor == "two-frame" ? control::PredictorKind::kTwoFrame : control::PredictorKind::kKalman;
     mp.predictor.accel_sigma = config.marking.accel_sigma;

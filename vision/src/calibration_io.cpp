@@ -77,8 +77,14 @@ int read_positive_int(const cv::FileStorage& fs, const std::string& path, const 
 Eigen::Matrix3d read_camera_matrix(const cv::FileStorage& fs, const std::string& path, const std::string& key) {
   Eigen::Matrix3d K;
   cv::cv2eigen(read_matrix(fs, path, key, 3, 3), K);
-  if (K(0, 0) <= 0 || K(1, 1) <= 0 || K(2, 2) != 1.0 || K(1, 0) != 0 || K(2, 0) != 0 || K(2, 1) != 0)
+  if (!K.allFinite() || K(0, 0) <= 0 || K(1, 1) <= 0 || K(2, 2) != 1.0 || K(1, 0) != 0 || K(2, 0) != 0 || K(2, 1) != 0)
     fail(path, key, "not a camera matrix [fx s cx; 0 fy cy; 0 0 1] with fx, fy > 0");
+  // A lens of this world: a focal length of 1e-300 px or 1e300 px is a broken file.
+  if (K(0, 0) < 1 || K(0, 0) > 1e6 || K(1, 1) < 1 || K(1, 1) > 1e6) {
+    std::ostringstream os;
+    os << "focal lengths " << K(0, 0) << ", " << K(1, 1) << " px: expected within [1, 1e6] px";
+    fail(path, key, os.str());
+  }
   return K;
 }
 
@@ -120,7 +126,14 @@ StereoCalibration load_stereo_calibration(const std::string& path) {
   cv::Mat t = read_matrix(fs, path, "T", 0, 0);
   if (t.total() != 3) fail(path, "T", "expected 3 values, got " + std::to_string(t.total()));
   T << t.at<double>(0), t.at<double>(1), t.at<double>(2);
-  if (T.norm() <= 0) fail(path, "T", "zero baseline");
+  if (!T.allFinite() || T.norm() <= 0) fail(path, "T", "zero (or not a finite) baseline");
+  // A stereo pair on one cell: from a millimetre to a hundred metres apart.
+  if (T.norm() < 1e-3 || T.norm() > 100) {
+    std::ostringstream os;
+    os << "baseline " << T.norm() << " m: expected within [0.001, 100] m (T is in metres)";
+    fail(path, "T", os.str());
+  }
+  if (w > 16384 || h > 16384) fail(path, "image_width", "image " + std::to_string(w) + "x" + std::to_string(h) + " is larger than 16384 px a side");
   c.X_CamR_CamL.linear() = R;
   c.X_CamR_CamL.translation() = T;
   return c;

@@ -308,6 +308,7 @@ ReplayReport replay_recording(const CellConfig& config, const std::string& recor
   report.scenario = rec.manifest().scenario.empty() ? std::filesystem::path(recording).filename().string() : rec.manifest().scenario;
   report.recording = recording;
   report.panel_type = rec.manifest().panel_type;
+  report.index_problems = rec.index_problems();
   if (!options.gpio_sim.empty()) {
     check_real_devices(config, options);
     report.devices = "real: gpio chip " + config.gpio.chip +

@@ -12,6 +12,7 @@
 
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/host/json.hpp"
+#include "markcell/common/log_escape.hpp"
 #include "markcell/host/rig/replay.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -327,6 +328,9 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
   std::ofstream out(json);
   out << "{\n  \"scenario\": " << quote(report.scenario) << ",\n  \"recording\": " << quote(report.recording)
       << ",\n  \"panel_type\": " << quote(report.panel_type) << ",\n  \"devices\": " << quote(report.devices) << ",\n";
+  out << "  \"index_problems\": [";
+  for (std::size_t i = 0; i < report.index_problems.size(); ++i) out << (i ? ", " : "") << quote(report.index_problems[i]);
+  out << "],\n";
   out << run_json(main, "  ") << ",\n";
   out << "  \"predictors\": {";
   for (std::size_t i = 0; i < report.runs.size(); ++i) {
@@ -352,6 +356,11 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
 std::string report_table(const ReplayReport& report, const std::vector<std::string>& files) {
   std::ostringstream o;
   char line[256];
+  // Index lines the reader refused are not in the replay: said first, each one.
+  if (!report.index_problems.empty()) {
+    o << "frames.csv: " << report.index_problems.size() << " line(s) refused, not replayed:\n";
+    for (const auto& p : report.index_problems) o << "  " << escape_log(p) << "\n";
+  }
   o << "marking (" << report.scenario << ", " << report.panel_type << (report.devices == "simulated" ? "" : "; devices " + report.devices)
     << "):\n";
   std::snprintf(line, sizeof line, "  %-38s", "");

@@ -182,14 +182,43 @@ struct TrackerRequest {
   std::uint32_t placement_serial = 0;
   std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> reference_P{};
   std::array<bool, vision::kMaxMacroFeatures> known{};
+  // The panel's record as the vision lane needs it to fit each pose to it (PoseFits):
+  // which job (0: none), and the record's MFs in the scanner's frame.
+  std::uint32_t job_serial = 0;
+  int mf_count = 0;
+  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> mfs_SL{};
 };
+
+// An MF's position in P counts as measured once averaged over this many frames.
+inline constexpr int kMeasuredFrames = 10;
+
+// The inter-calibration's fits for one pose, made where the pose is made: on the vision
+// lane, with its 30 ms budget. (RANSAC over up to 16 MFs ran 93-337 us of the 1 kHz
+// control lane's marking task, budget 200 us, on a loaded machine.) The marking sequence
+// takes the one its state asks for; the fit is the same function on the same inputs.
+struct PoseFits {
+  std::uint32_t job_serial = 0;  // TrackerRequest::job_serial these are for; 0: none made
+  Intercalibration known;        // over every MF with a position in P (a new P)
+  Intercalibration measured;     // over the MFs measured in kMeasuredFrames frames or more (a refit)
+  int measured_count = 0;
+  std::array<bool, vision::kMaxMacroFeatures> measured_mask{};
+};
+
+struct MarkingEstimate {
+  vision::PoseEstimate pose;
+  PoseFits fits;
+};
+
+// On the vision lane, with each pose of a panel whose record is known: bounded, no allocation.
+void fit_pose_to_record(const TrackerRequest& job, const vision::PoseEstimate& e, const IntercalibrationLimits& limits,
+                        PoseFits& out) noexcept;
 
 class MarkingSequence {
  public:
   static constexpr std::size_t kPredictionLog = 1 << 13;
   static constexpr std::size_t kPanelFrameLog = 16;
   MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve, drivers::GpioLines& lines,
-                  const PlcLineMap& plc, const PlcIo& plc_io, TripleBuffer<vision::PoseEstimate>& estimates,
+                  const PlcLineMap& plc, const PlcIo& plc_io, TripleBuffer<MarkingEstimate>& estimates,
                   TripleBuffer<TrackerRequest>& tracker_requests);
 
   // From the record reader (another thread): one record waits; false when one already does.
@@ -214,13 +243,14 @@ class MarkingSequence {
   const PanelFrameRecord& panel_frame(std::size_t i) const { return panel_frame_log_[i]; }
 
  private:
-  void on_estimate(const vision::PoseEstimate& e, Nanos now);
+  void on_estimate(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now);
   void start_panel(Nanos now);
   // False: no usable P (the panel failed, or a new search was asked for). `now`: the
   // control lane's time (e.time is the frame's, a vision latency earlier).
-  bool intercalibrate_panel(const vision::PoseEstimate& e, Nanos now);
+  bool intercalibrate_panel(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now);
   void request_search();
-  void refine_intercalibration(const vision::PoseEstimate& e);
+  void refine_intercalibration(const vision::PoseEstimate& e, const PoseFits& fits);
+  void write_tracker_request(TrackerRequest& req) const;
   void place_tools(const Intercalibration& ic);
   // The MFs the tracker has not measured, placed through the record, for it to pick up.
   void place_unmeasured_mfs(const vision::PoseEstimate& e, const Intercalibration& ic);
@@ -252,7 +282,7 @@ class MarkingSequence {
   drivers::GpioLines& lines_;
   const PlcLineMap plc_;
   const PlcIo& plc_io_;
-  TripleBuffer<vision::PoseEstimate>& estimates_;
+  TripleBuffer<MarkingEstimate>& estimates_;
   TripleBuffer<TrackerRequest>& tracker_requests_;
   PosePredictor predictor_;
 
@@ -265,6 +295,7 @@ class MarkingSequence {
   std::atomic<std::uint64_t> completed_{0};
   std::atomic<std::uint64_t> acked_{0};
   std::uint32_t reset_serial_ = 0;
+  std::uint32_t job_serial_ = 0;        // the panel's job, for the vision lane's fits
   std::uint32_t serial_at_reset_ = 0;   // tracker serial when the search was asked for
   std::uint32_t latest_serial_ = 0;
   std::uint32_t intercal_serial_ = 0;   // the P the panel's tool poses are in (0: none yet)

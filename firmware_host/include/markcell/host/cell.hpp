@@ -166,9 +166,12 @@ class Cell {
     vision::FrameSource* source = nullptr;
     rig::ArmOverlay* overlay = nullptr;  // the rig's arm painted over each pair
     std::vector<std::unique_ptr<vision::PanelTracker>> trackers;  // one per panel type
-    TripleBuffer<vision::PoseEstimate>* estimates = nullptr;
+    TripleBuffer<control::MarkingEstimate>* estimates = nullptr;
     TripleBuffer<control::TrackerRequest>* requests = nullptr;
     control::FaultLog* faults = nullptr;
+    // The panel's record (from the last request) and the limits its fits are made with.
+    control::TrackerRequest job;
+    control::IntercalibrationLimits limits;
     int active = 0;
     std::uint32_t reset_seen = 0;
     std::uint32_t hint_seen = 0;
@@ -187,7 +190,7 @@ class Cell {
   std::vector<vision::PanelTypeModel> panel_models_;
   std::unique_ptr<vision::FrameSource> frame_source_;
   std::unique_ptr<rig::ArmOverlay> arm_overlay_;
-  std::unique_ptr<TripleBuffer<vision::PoseEstimate>> estimates_;
+  std::unique_ptr<TripleBuffer<control::MarkingEstimate>> estimates_;
   std::unique_ptr<TripleBuffer<control::TrackerRequest>> tracker_requests_;
   std::unique_ptr<VisionTask> vision_;
   std::unique_ptr<control::MarkingSequence> marking_;

@@ -94,6 +94,7 @@ struct ReplayReport {
   std::string recording;
   std::string panel_type;
   std::string devices = "simulated";            // what the cell ran on, and its clock with it
+  std::vector<std::string> index_problems;      // frames.csv lines refused (not replayed), with why
   std::vector<PredictorRun> runs;               // runs[0]: the configured predictor
 };
 

@@ -20,6 +20,15 @@ struct SimCell {
   ~SimCell() { cell.shutdown(control::FaultCode::kShutdown, "test", "end of test"); }
   void run_to(Nanos t) { REQUIRE(cell.sim_clock()->run_until(t) == control::SimClock::RunResult::kReached); }
   bool line(LineRole role) const { return const_cast<Cell&>(cell).sim_gpio()->physical(static_cast<int>(role)); }
+  // At 200 ms the arm is sent towards a far target; at 400 ms it is on its way.
+  void arm_on_its_way() {
+    run_to(millis(200));
+    drivers::ArmCommand move;
+    move.mode = drivers::ArmMode::kMove;
+    move.target.position = {0.9, 0.4, 0.2};
+    cell.arm_link().send(move, millis(200));
+    run_to(millis(400));
+  }
   // The valve opens only with a panel in front of it (the PLC's panel present).
   void panel_in_front(bool present = true) { cell.drive_sim_input(LineRole::kPlcPanelPresent, present); }
   CellConfig config;
@@ -116,12 +125,7 @@ TEST_CASE("the arm falling silent safe-stops the cell: valve closed, PLC told") 
 
 TEST_CASE("an e-stop holds the arm where it is") {
   SimCell s;
-  s.run_to(millis(200));
-  drivers::ArmCommand move;
-  move.mode = drivers::ArmMode::kMove;
-  move.target.position = {0.9, 0.4, 0.2};
-  s.cell.arm_link().send(move, millis(200));
-  s.run_to(millis(400));  // on its way
+  s.arm_on_its_way();
   const auto moving = s.cell.sim_arm()->model().tool().position;
   CHECK(moving[0] > 0.35);
   const int estop = static_cast<int>(LineRole::kPlcEstop);
@@ -154,12 +158,7 @@ TEST_CASE("no panel present, no spray: the valve refuses a pulse, and closes on 
 
 TEST_CASE("after an e-stop: the PLC's release and reset send the arm home, then the cell runs again") {
   SimCell s;
-  s.run_to(millis(200));
-  drivers::ArmCommand move;
-  move.mode = drivers::ArmMode::kMove;
-  move.target.position = {0.9, 0.4, 0.2};
-  s.cell.arm_link().send(move, millis(200));
-  s.run_to(millis(400));
+  s.arm_on_its_way();
   s.cell.drive_sim_input(LineRole::kPlcEstop, true);  // pressed
   s.run_to(millis(1500));
   REQUIRE(s.cell.safe_stop().done());

@@ -25,6 +25,20 @@ using namespace markcell::vision;
 
 namespace {
 
+// A 64x48 recording of `frames` grey pairs at 1 us steps, in `folder`; returns the image.
+cv::Mat small_recording(const std::string& folder, int frames) {
+  RecordingManifest m;
+  m.panel_type = "door";
+  m.frame_rate_hz = 30;
+  m.image_width = 64;
+  m.image_height = 48;
+  m.calibration = "stereo.yaml";
+  const cv::Mat img(48, 64, CV_8UC1, cv::Scalar(100));
+  RecordingWriter w(folder, m);
+  for (int i = 0; i < frames; ++i) w.add(static_cast<std::uint64_t>(i), 1000 * (i + 1), img, img);
+  return img;
+}
+
 StereoCalibration paper_rig() { return load_stereo_calibration(test::source_path("config/calibration/marking_stereo.yaml")); }
 
 // The panel facing the cameras at about 3.1 m: panel y up, z towards the cameras.
@@ -228,17 +242,7 @@ TEST_CASE("recordings round-trip: images, times, truth and defects") {
 TEST_CASE("bad frames are reported with their index and dropped, never a crash") {
   test::TempDir dir;
   const std::string folder = (dir.path() / "rec").string();
-  RecordingManifest m;
-  m.panel_type = "door";
-  m.frame_rate_hz = 30;
-  m.image_width = 64;
-  m.image_height = 48;
-  m.calibration = "stereo.yaml";
-  const cv::Mat img(48, 64, CV_8UC1, cv::Scalar(100));
-  {
-    RecordingWriter w(folder, m);
-    for (int i = 0; i < 4; ++i) w.add(static_cast<std::uint64_t>(i), 1000 * (i + 1), img, img);
-  }
+  const cv::Mat img = small_recording(folder, 4);
   // Break it the ways recordings break: a missing image, a wrong size, time going
   // backwards, a corrupt index line.
   std::filesystem::remove(folder + "/right/000001.png");
@@ -273,17 +277,7 @@ TEST_CASE("bad frames are reported with their index and dropped, never a crash")
 TEST_CASE("hostile frames and index lines: a PNG bomb, 16-bit and 2-channel images, a FIFO, paths out of the folder, times at the limits") {
   test::TempDir dir;
   const std::string folder = (dir.path() / "rec").string();
-  RecordingManifest m;
-  m.panel_type = "door";
-  m.frame_rate_hz = 30;
-  m.image_width = 64;
-  m.image_height = 48;
-  m.calibration = "stereo.yaml";
-  const cv::Mat img(48, 64, CV_8UC1, cv::Scalar(100));
-  {
-    RecordingWriter w(folder, m);
-    for (int i = 0; i < 2; ++i) w.add(static_cast<std::uint64_t>(i), 1000 * (i + 1), img, img);
-  }
+  const cv::Mat img = small_recording(folder, 2);
   // A PNG whose header declares 60000x60000 (the file itself is small): refused from the
   // header, nothing decoded or allocated for its pixels.
   std::vector<uchar> png;

@@ -82,8 +82,7 @@ bool SafeStop::trigger(Nanos time, FaultCode code, std::string_view source,
   return true;
 }
 
-void SafeStop::cancel_rearm(Nanos time, std::string_view detail) noexcept {
-  if (!rearm_requested_.exchange(false, std::memory_order_acq_rel)) return;
+void SafeStop::log_rearm(Nanos time, std::string_view detail) noexcept {
   Fault fault;
   fault.time = time;
   fault.code = FaultCode::kRearm;
@@ -92,17 +91,16 @@ void SafeStop::cancel_rearm(Nanos time, std::string_view detail) noexcept {
   log_.push(fault);
 }
 
+void SafeStop::cancel_rearm(Nanos time, std::string_view detail) noexcept {
+  if (rearm_requested_.exchange(false, std::memory_order_acq_rel)) log_rearm(time, detail);
+}
+
 bool SafeStop::rearm(Nanos time, std::string_view detail) noexcept {
   rearm_requested_.store(false, std::memory_order_release);
   if (!recoverable()) return false;
   int expected = kStopped;
   if (!state_.compare_exchange_strong(expected, kIdle, std::memory_order_acq_rel)) return false;
-  Fault fault;
-  fault.time = time;
-  fault.code = FaultCode::kRearm;
-  fault.source.assign("safe_stop");
-  fault.detail.assign(detail);
-  log_.push(fault);
+  log_rearm(time, detail);
   return true;
 }
 

@@ -31,6 +31,16 @@ constexpr int kMaxImageSide = 8192;
 // Times far enough from the int64 limits that differences of two never overflow.
 constexpr std::int64_t kMaxAbsTime = std::int64_t{1} << 62;
 
+// A table the manifest names (truth.csv, defects.csv): there, a regular file, bounded.
+std::string read_table(const fs::path& path, std::string_view what) {
+  if (!fs::exists(path)) throw RecordingError(path.string() + ": missing (the manifest names it)");
+  try {
+    return read_bounded_file(path.string(), kMaxTableBytes, what);
+  } catch (const FileRefused& e) {
+    throw RecordingError(e.what());
+  }
+}
+
 // A path from the index, confined to the recording folder: relative, no "..", and,
 // resolved through any symbolic links, still inside it. "" when fine, else why not.
 std::string confined_problem(const fs::path& folder, const std::string& rel) {
@@ -296,13 +306,7 @@ Recording Recording::open(const std::string& folder) {
   }
 
   if (r.manifest_.has_truth) {
-    if (!fs::exists(dir / "truth.csv")) throw RecordingError((dir / "truth.csv").string() + ": missing (the manifest names it)");
-    std::istringstream tin;
-    try {
-      tin.str(read_bounded_file((dir / "truth.csv").string(), kMaxTableBytes, "a recording's truth"));
-    } catch (const FileRefused& e) {
-      throw RecordingError(e.what());
-    }
+    std::istringstream tin(read_table(dir / "truth.csv", "a recording's truth"));
     std::getline(tin, line);
     number = 1;
     while (std::getline(tin, line)) {
@@ -321,13 +325,7 @@ Recording Recording::open(const std::string& folder) {
     }
   }
   if (r.manifest_.has_defects) {
-    if (!fs::exists(dir / "defects.csv")) throw RecordingError((dir / "defects.csv").string() + ": missing (the manifest names it)");
-    std::istringstream din;
-    try {
-      din.str(read_bounded_file((dir / "defects.csv").string(), kMaxTableBytes, "a recording's defects"));
-    } catch (const FileRefused& e) {
-      throw RecordingError(e.what());
-    }
+    std::istringstream din(read_table(dir / "defects.csv", "a recording's defects"));
     std::getline(din, line);
     number = 1;
     while (std::getline(din, line)) {

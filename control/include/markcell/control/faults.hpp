@@ -107,6 +107,7 @@ class SafeStop {
 
  private:
   enum : int { kIdle = 0, kStopping = 1, kStopped = 2 };
+  void log_rearm(Nanos time, std::string_view detail) noexcept;
   FaultLog& log_;
   std::array<SafeOutput*, kMaxOutputs> outputs_{};
   int output_count_ = 0;

@@ -350,7 +350,7 @@ TEST_CASE_METHOD(Fixture, "a nesting bomb, an empty file, a second document, a k
   CHECK(m[0] == file() + ":1:1: (document): the file is empty: expected the cell configuration (a map)");
   m = messages(check(kValid + "---\ncell: {name: other}\n"));
   REQUIRE(m.size() == 1);
-  CHECK(m[0] == file() + ":41:1: (document): a second YAML document: a cell configuration is one document");
+  CHECK(m[0] == file() + ":40:1: (document): a second YAML document: a cell configuration is one document");
   m = messages(check(replace(kValid, "    arm_link: {lane", "    plc_io: {lane: control, period_us: 2000, budget_us: 100}\n    arm_link: {lane")));
   REQUIRE(m.size() == 1);
   CHECK(m[0] == file() + ":11:5: executive.tasks.plc_io: declared twice in this map (yaml would keep only one)");

@@ -766,15 +766,11 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   if (const int line = nesting_beyond(text, kMaxYamlNesting); line > 0)
     throw ConfigInvalid({ConfigError{path, line, 1, "", "nested more than " + std::to_string(kMaxYamlNesting) + " levels deep"}});
   try {
-    std::vector<YAML::Node> docs = YAML::LoadAll(text);
-    if (docs.empty() || docs[0].IsNull())
+    if (const int line = second_document_line(text); line > 0)
+      throw ConfigInvalid({ConfigError{path, line, 1, "", "a second YAML document: a cell configuration is one document"}});
+    root = YAML::Load(text);
+    if (!root.IsDefined() || root.IsNull())
       throw ConfigInvalid({ConfigError{path, 1, 1, "", "the file is empty: expected the cell configuration (a map)"}});
-    if (docs.size() > 1) {
-      const YAML::Mark m = docs[1].Mark();
-      throw ConfigInvalid({ConfigError{path, m.line >= 0 ? m.line + 1 : 1, m.column >= 0 ? m.column + 1 : 1, "",
-                                       "a second YAML document: a cell configuration is one document"}});
-    }
-    root = docs[0];
   } catch (const YAML::ParserException& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML syntax: " + e.msg}});
   } catch (const YAML::Exception& e) {

@@ -69,9 +69,9 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
   if (const int line = nesting_beyond(text, 8); line > 0)
     throw RecordInvalid(path + ":" + std::to_string(line) + ": nested deeper than an inspection record is (8 levels)");
   try {
-    std::vector<YAML::Node> docs = YAML::LoadAll(text);
-    if (docs.size() > 1) throw RecordInvalid(path + ": a second YAML document: a record is one document");
-    if (!docs.empty()) root = docs[0];
+    if (const int line = second_document_line(text); line > 0)
+      throw RecordInvalid(path + ":" + std::to_string(line) + ": a second YAML document: a record is one document");
+    root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     throw RecordInvalid(path + ":" + std::to_string(e.mark.line + 1) + ": YAML: " + e.msg);
   }

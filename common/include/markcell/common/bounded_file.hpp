@@ -108,4 +108,37 @@ inline int nesting_beyond(std::string_view text, int limit) {
   return 0;
 }
 
+// The 1-based line where a YAML text starts a second document (a `---` after content,
+// or content after a `...`), 0 when it holds one. yaml-cpp 0.7's LoadAll can loop for
+// ever on malformed text (found by the fuzzer): texts are parsed with Load, which reads
+// the first document only, and a second one is found here instead.
+inline int second_document_line(std::string_view text) {
+  bool content = false, ended = false;
+  int line = 0;
+  for (std::size_t start = 0; start < text.size();) {
+    std::size_t end = text.find('\n', start);
+    if (end == std::string_view::npos) end = text.size();
+    std::string_view l = text.substr(start, end - start);
+    start = end + 1;
+    ++line;
+    if (!l.empty() && l.back() == '\r') l.remove_suffix(1);
+    const bool marker_start = l.substr(0, 3) == "---" && (l.size() == 3 || l[3] == ' ' || l[3] == '\t');
+    const bool marker_end = l.substr(0, 3) == "..." && (l.size() == 3 || l[3] == ' ' || l[3] == '\t');
+    const std::size_t first = l.find_first_not_of(" \t");
+    const bool blank = first == std::string_view::npos || l[first] == '#';
+    if (marker_start) {
+      if (content || ended) return line;
+      continue;
+    }
+    if (marker_end) {
+      ended = true;
+      continue;
+    }
+    if (blank || (!content && l[0] == '%')) continue;
+    if (ended) return line;
+    content = true;
+  }
+  return 0;
+}
+
 }  // namespace markcell

@@ -287,6 +287,22 @@ TEST_CASE("CAN link: heartbeat loss, refusal, arm reboot, bus-off and restart") 
     CHECK(b.link.status() == ArmLinkStatus::kHeartbeatLost);
     CHECK(is_fault(b.link.status()));
   }
+  SECTION("the controller deaf for 400 ms (its lane stalled, the simulated arm with it): not lost; then silent: lost") {
+    b.now += millis(400);  // neither end ran: no poll, no heartbeat sent
+    b.run(millis(1));
+    CHECK(b.link.status() == ArmLinkStatus::kOk);
+    b.run(millis(100));
+    CHECK(b.link.status() == ArmLinkStatus::kOk);
+    // The arm silent while the link listens: lost after the timeout as ever, with one
+    // more deaf spell in between that does not count either.
+    b.arm.set_silent(true);
+    b.run(millis(100));
+    b.now += millis(300);
+    b.run(millis(1));
+    CHECK(b.link.status() == ArmLinkStatus::kOk);
+    b.run(millis(60));
+    CHECK(b.link.status() == ArmLinkStatus::kHeartbeatLost);
+  }
   SECTION("a target beyond the arm's reach is refused") {
     ArmCommand c;
     c.mode = ArmMode::kMove;

@@ -75,6 +75,53 @@ TEST_CASE("run stops cleanly on SIGTERM and on SIGINT, outputs safe, report prin
   }
 }
 
+TEST_CASE("sim and replay stop on SIGTERM and SIGINT at their next step, their partial output marked") {
+  markcell::test::TempDir dir;
+  const std::string cd = "cd " + source_path("") + " && ";
+  // The shell waits (up to 60 s) for LINE in the log, signals, and reports the exit status
+  // and the milliseconds from the signal to the exit.
+  const auto signalled = [&](const std::string& command, const std::string& line, const char* sig) {
+    const std::string log = (dir.path() / "log").string();
+    return run_command("( " + cd + command + " > " + log + " 2>&1 & pid=$!; for i in $(seq 600); do grep -q '" + line + "' " + log +
+                       " && break; sleep 0.1; done; t0=$(date +%s%N); kill -" + sig + " $pid; wait $pid; rc=$?; t1=$(date +%s%N); "
+                       "echo \"exit=$rc ms=$(( (t1 - t0) / 1000000 ))\"; cat " + log + " )");
+  };
+  const auto stop_ms = [](const std::string& output) {
+    const auto at = output.find(" ms=");
+    return at == std::string::npos ? -1 : std::stoi(output.substr(at + 4));
+  };
+  // Rendering: stopped before the next frame; no recording.yaml, so the folder is no
+  // recording (a replay of it says so), and nothing is replayed.
+  const auto render = signalled(kMarkcell + " sim paper-door --out " + (dir.path() / "a").string(), "rendering paper-door", "TERM");
+  INFO(render.output);
+  CHECK(render.output.find("exit=143 ") != std::string::npos);
+  CHECK(render.output.find("/recording: rendering stopped by SIGTERM after ") != std::string::npos);
+  CHECK(render.output.find("the folder is not a recording (no recording.yaml)") != std::string::npos);
+  CHECK(render.output.find("not stopped in time") == std::string::npos);  // the backstop did not act
+  CHECK(!std::filesystem::exists(dir.path() / "a" / "recording" / "recording.yaml"));
+  CHECK(!std::filesystem::exists(dir.path() / "a" / "report.json"));
+  const int render_ms = stop_ms(render.output);
+  CHECK(render_ms >= 0);
+  CHECK(render_ms < 5000);  // at the next frame (about 0.1 s here, measured; 10 s is the backstop)
+
+  // Replaying: stopped within 100 ms of simulated time; report.json written, marked
+  // stopped, and the other predictor's run not begun.
+  const auto whole = run_command(cd + kMarkcell + " sim paper-door --seconds 2 --one-predictor -q --out " + (dir.path() / "b").string());
+  REQUIRE(whole.exit_code == 0);
+  const auto replay = signalled(kMarkcell + " replay " + (dir.path() / "b" / "recording").string() + " --out " +
+                                    (dir.path() / "r").string(), "\\[kalman\\] t=", "INT");
+  INFO(replay.output);
+  CHECK(replay.output.find("exit=130 ") != std::string::npos);
+  CHECK(replay.output.find("STOPPED by SIGINT at t=") != std::string::npos);
+  CHECK(replay.output.find("not stopped in time") == std::string::npos);
+  const std::string report = markcell::test::read_file((dir.path() / "r" / "report.json").string());
+  CHECK(report.find("\"stopped\": \"SIGINT at t=") != std::string::npos);
+  CHECK(report.find("\"two-frame\": {") == std::string::npos);
+  const int replay_ms = stop_ms(replay.output);
+  CHECK(replay_ms >= 0);
+  CHECK(replay_ms < 5000);  // report and plots written meanwhile
+}
+
 TEST_CASE("sim and replay: an unknown scenario and a folder without a recording are errors that say what to fix") {
   markcell::test::TempDir dir;
   const auto unknown = run_command("cd " + source_path("") + " && " + kMarkcell + " sim paper-dor --out " + dir.path().string());

@@ -1,6 +1,8 @@
 // The executive on the real clock: 2 s at 1 kHz, statistics reported (no timing
 // thresholds: the machines are shared), and a clean stop.
 #include <catch2/catch.hpp>
+#include <time.h>
+
 #include <chrono>
 #include <iostream>
 #include <thread>
@@ -70,4 +72,49 @@ TEST_CASE("stop() returns within one period plus the longest budget") {
   std::cout << "stop took " << to_micros(took) << " us (bound: period 100 ms + budget 20 ms)\n";
   CHECK_FALSE(exec.running());
   CHECK(exec.task_stats(0).exec.count() >= 1);
+}
+
+TEST_CASE("the budget is on the task's own CPU time: kept off its core is no overrun, computing too long is") {
+  // Two tasks with a 500 us budget and policy safe_stop: one sleeps 3 ms in its step (off
+  // its core, as a thread the kernel or the hypervisor preempts), one spins 3 ms of its
+  // own CPU time (measured by the same clock as the reference).
+  for (const bool spin : {false, true}) {
+    CAPTURE(spin);
+    ExecutiveSpec spec;
+    spec.tick = millis(1);
+    spec.lanes = {{"control", -1, 0}};
+    spec.tasks = {{"t", 0, 20, 0, micros(500), OverrunPolicy::kSafeStop}};
+    spec.lane_stall_limit = millis(1000);
+    spec.supervisor_period = millis(100);
+    RealClock clock;
+    FaultLog log;
+    SafeStop safe(log);
+    Executive exec(spec, clock, safe);
+    exec.bind("t", spin ? [](TaskContext&, void*) {
+      timespec t0{}, t{};
+      clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t0);
+      do clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+      while ((t.tv_sec - t0.tv_sec) * 1'000'000'000L + (t.tv_nsec - t0.tv_nsec) < 3'000'000L);
+      return TaskResult::kOk;
+    } : [](TaskContext&, void*) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(3));
+      return TaskResult::kOk;
+    }, nullptr);
+    exec.start();
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    exec.stop();
+    std::cout << exec.timing_report();
+    const auto& stats = exec.task_stats(0);
+    REQUIRE(stats.exec.count() >= 1);
+    CHECK(stats.wall_max.load() >= millis(3));
+    if (spin) {
+      CHECK(stats.overruns.load() >= 1);
+      CHECK(stats.exec.max() >= millis(3));
+      CHECK(safe.active());
+    } else {
+      CHECK(stats.overruns.load() == 0);
+      CHECK(stats.exec.max() < micros(500));
+      CHECK_FALSE(safe.active());
+    }
+  }
 }

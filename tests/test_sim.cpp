@@ -431,7 +431,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
 }
 
-TEST_CASE("a panel's result is written and synced before the PLC hears done (without it the PLC gets fault)") {
+TEST_CASE("a panel's result is written and synced before the PLC hears done; without it fault, and a late line says so") {
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
   const auto pairs = [&] { return decoded_pairs(rec); };
   test::TempDir dir;
@@ -463,7 +463,8 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done (wit
     if (write) {
       host::ResultsFile file(cfg.results_file);
       file.append(host::ResultsFile::to_json(r, cfg.name));
-      cell.marking()->acknowledge_result(r.serial);
+      CHECK(cell.marking()->acknowledge_result(r.serial));  // in time
+      CHECK(cell.marking()->acknowledge_result(r.serial));  // (said twice: the same answer)
       clock.run_until(t + millis(10));
       lines();
       CHECK(done);
@@ -479,6 +480,19 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done (wit
       CHECK_FALSE(done);
       CHECK(fault);
       CHECK(cell.marking()->current().reason.view() == "results file not written in time");
+      // The line reaching the disk after that: the acknowledgement says it is too late, and
+      // the writer's late line makes the file's last word on the panel the PLC's fault.
+      host::ResultsFile file(cfg.results_file);
+      file.append(host::ResultsFile::to_json(r, cfg.name));
+      CHECK_FALSE(cell.marking()->acknowledge_result(r.serial));
+      file.append(host::ResultsFile::late_json(cfg.name, r.serial, std::string(r.panel_id.view())));
+      clock.run_until(t + seconds(4));
+      lines();
+      CHECK_FALSE(done);  // the PLC's answer stands
+      CHECK(fault);
+      const std::string text = read_file(cfg.results_file);
+      const auto last = text.rfind("{\"cell\"");
+      CHECK(text.substr(last).find("\"panel_id\": \"paper-door-1\", \"late\": true, \"fault\": true") != std::string::npos);
     }
     cell.shutdown(control::FaultCode::kShutdown, "test", "done");
   }

@@ -1,11 +1,19 @@
 #include "markcell/control/exec_clock.hpp"
 
+#include <time.h>
+
 #include <cerrno>
 #include <chrono>
 
 #include "markcell/common/check.hpp"
 
 namespace markcell::control {
+
+Nanos RealClock::cpu_now(int) const {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<Nanos>(ts.tv_sec) * kNanosPerSecond + ts.tv_nsec;
+}
 
 WakeResult RealClock::sleep_until(int, Nanos t) {
   const timespec ts = to_timespec(t);

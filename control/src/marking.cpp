@@ -58,6 +58,14 @@ bool MarkingSequence::offer_job(const PanelJob& job) {
   return true;
 }
 
+bool MarkingSequence::acknowledge_result(std::uint64_t serial) {
+  const std::uint64_t written = 2 * serial;
+  std::uint64_t fate = result_fate_.load(std::memory_order_acquire);
+  while (fate < written)
+    if (result_fate_.compare_exchange_weak(fate, written, std::memory_order_acq_rel)) return true;
+  return fate == written;
+}
+
 void MarkingSequence::set_plc(int line, bool value) {
   if (line >= 0) (void)lines_.set(line, value);
 }
@@ -161,15 +169,21 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
       }
       break;
     }
-    case MarkingState::kReporting:
-      if (acked_.load(std::memory_order_acquire) >= result_.serial) {
+    case MarkingState::kReporting: {
+      const std::uint64_t written = 2 * result_.serial;
+      std::uint64_t fate = result_fate_.load(std::memory_order_acquire);
+      if (fate == written) {
         report_to_plc();
       } else if (now > deadline_) {
-        result_.fault = true;
-        result_.reason.assign("results file not written in time");
+        // Given up on, unless the writer's acknowledgement came in the meantime.
+        if (result_fate_.compare_exchange_strong(fate, written + 1, std::memory_order_acq_rel) || fate != written) {
+          result_.fault = true;
+          result_.reason.assign("results file not written in time");
+        }
         report_to_plc();
       }
       break;
+    }
     case MarkingState::kWaitRelease:
       if (!plc.panel_present) {  // the PLC has seen the answer: both lines drop for the next panel
         set_plc(plc_.done, false);

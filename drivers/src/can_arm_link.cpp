@@ -17,7 +17,7 @@ void CanArmLink::activate(Nanos now) {
   if (!bus_.is_open()) bus_.open();
   status_ = ArmLinkStatus::kConnecting;
   have_heartbeat_ = have_state_ = bus_off_ = refused_ = io_error_ = half_ = false;
-  last_heartbeat_ = now;  // the heartbeat timeout runs from activation
+  heartbeat_silence_.start(now);  // the heartbeat timeout runs from activation
   next_own_heartbeat_ = now;
   send_frame(canopen::nmt(NmtCommand::kStart, config_.node_id));
 }
@@ -74,6 +74,7 @@ void CanArmLink::take_state(const std::array<double, 3>& position, const std::ar
 
 ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
   if (status_ == ArmLinkStatus::kInactive) return status_;
+  heartbeat_silence_.polled(now);
   std::array<CanFrame, 32> frames;
   for (int batch = 0; batch < 4; ++batch) {
     const int n = bus_.receive(frames, 0);
@@ -100,7 +101,7 @@ ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
       switch (m.kind) {
         case Kind::kHeartbeat:
           have_heartbeat_ = true;
-          last_heartbeat_ = now;
+          heartbeat_silence_.heard(now);
           arm_nmt_ = m.nmt_state;
           if (m.nmt_state == NmtState::kBootUp || m.nmt_state == NmtState::kPreOperational)
             send_frame(canopen::nmt(NmtCommand::kStart, config_.node_id));  // it restarted: start it again
@@ -131,7 +132,7 @@ ArmLinkStatus CanArmLink::poll(Nanos now) noexcept {
   }
   if (io_error_) status_ = ArmLinkStatus::kIoError;
   else if (bus_off_) status_ = ArmLinkStatus::kBusOff;
-  else if (now - last_heartbeat_ > config_.heartbeat_timeout) status_ = ArmLinkStatus::kHeartbeatLost;
+  else if (heartbeat_silence_.silent_for(now) > config_.heartbeat_timeout) status_ = ArmLinkStatus::kHeartbeatLost;
   else if (have_state_ && state_.fault()) status_ = ArmLinkStatus::kArmFault;
   else if (refused_) status_ = ArmLinkStatus::kRefused;
   else if (have_heartbeat_ && have_state_ && arm_nmt_ == NmtState::kOperational) status_ = ArmLinkStatus::kOk;

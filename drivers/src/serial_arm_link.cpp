@@ -5,7 +5,7 @@ namespace markcell::drivers {
 void SerialArmLink::activate(Nanos now) {
   port_.open(config_.device, config_.baud);
   status_ = ArmLinkStatus::kConnecting;
-  last_state_ = now;  // the heartbeat timeout runs from activation
+  state_silence_.start(now);  // the heartbeat timeout runs from activation
   have_state_ = refused_ = no_ack_ = io_error_ = false;
   pending_.active = false;
 }
@@ -45,6 +45,7 @@ std::uint8_t SerialArmLink::send(const ArmCommand& command, Nanos now) noexcept 
 
 ArmLinkStatus SerialArmLink::poll(Nanos now) noexcept {
   if (!port_.is_open()) return status_ = ArmLinkStatus::kInactive;
+  state_silence_.polled(now);
   std::array<std::uint8_t, 256> buf{};
   for (int reads = 0; reads < 8 && !io_error_; ++reads) {
     const long n = port_.read_some(buf, 0);
@@ -69,7 +70,7 @@ ArmLinkStatus SerialArmLink::poll(Nanos now) noexcept {
               ++counters_.decode_errors;
             } else {
               state_.received = now;
-              last_state_ = now;
+              state_silence_.heard(now);
               have_state_ = true;
               ++counters_.states_received;
             }
@@ -92,7 +93,7 @@ ArmLinkStatus SerialArmLink::poll(Nanos now) noexcept {
   }
   if (io_error_) status_ = ArmLinkStatus::kIoError;
   else if (no_ack_) status_ = ArmLinkStatus::kNoAck;
-  else if (now - last_state_ > config_.heartbeat_timeout) status_ = ArmLinkStatus::kHeartbeatLost;
+  else if (state_silence_.silent_for(now) > config_.heartbeat_timeout) status_ = ArmLinkStatus::kHeartbeatLost;
   else if (have_state_ && state_.fault()) status_ = ArmLinkStatus::kArmFault;
   else if (refused_) status_ = ArmLinkStatus::kRefused;
   else status_ = have_state_ ? ArmLinkStatus::kOk : ArmLinkStatus::kConnecting;

@@ -23,6 +23,7 @@
 #include "markcell/host/results_file.hpp"
 #include "markcell/host/select_mfs_window.hpp"
 #include "markcell/host/rig/replay.hpp"
+#include "markcell/host/stop_signal.hpp"
 #include "markcell/host/rig/scenario.hpp"
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -148,11 +149,16 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     if (m == nullptr || m->panels_completed() == written) return;
     m->results().update();
     const control::PanelResult& r = m->results().read();
+    bool late = false;  // the PLC heard fault before the line reached the disk
     if (results) {
       try {
         results->append(ResultsFile::to_json(r, config.name));
-        m->acknowledge_result(r.serial);
+        if (!m->acknowledge_result(r.serial)) {
+          late = true;
+          results->append(ResultsFile::late_json(config.name, r.serial, std::string(r.panel_id.view())));
+        }
       } catch (const std::exception& e) {
+        late = true;  // never acknowledged: the sequence's wait runs out, the PLC hears fault
         std::fprintf(stderr, "<3>markcell: %s (the PLC gets fault)\n", escape_log(e.what()).c_str());
       }
     }
@@ -161,8 +167,10 @@ int run_command(const std::string& file, const std::string& clock_name, double s
       sprayed += r.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
       skipped += r.defects[static_cast<std::size_t>(i)].skipped != control::SkipReason::kNone ? 1 : 0;
     }
-    std::fprintf(stderr, "%smarkcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"\n", r.fault ? "<3>" : "<6>",
-                 escape_log(r.panel_id.view()).c_str(), r.fault ? "fault" : "done", sprayed, skipped, escape_log(r.reason.view()).c_str());
+    const bool fault = r.fault || late;
+    std::fprintf(stderr, "%smarkcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"\n", fault ? "<3>" : "<6>",
+                 escape_log(r.panel_id.view()).c_str(), fault ? "fault" : "done", sprayed, skipped,
+                 late ? "results file not written in time" : escape_log(r.reason.view()).c_str());
     written = r.serial;
   };
 
@@ -430,6 +438,9 @@ int replay_command(const CellConfig& config, const std::string& recording, const
   const rig::ReplayReport report = rig::replay_recording(config, recording, options);
   const auto files = rig::write_report(report, config, out);
   std::cout << rig::report_table(report, files);
+  // Stopped by a signal: the report is written (and marked partial); the exit status is
+  // the shell's for a process ended by that signal.
+  if (!report.stopped.empty() && options.stop != nullptr) return 128 + options.stop->load();
   return 0;
 }
 
@@ -454,8 +465,15 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, std:
   rig::GenerateOptions g;
   if (seconds_limit > 0) g.max_duration = static_cast<Nanos>(seconds_limit * 1e9);
   g.fps = fps;
+  g.stop = options.stop;
   if (options.progress) std::cerr << "markcell sim: rendering " << scenario_name << " into " << recording.string() << "\n";
-  const std::size_t frames = rig::generate_recording(scenario, recording.string(), marking, scanner, vision::RenderSettings{}, g);
+  std::size_t frames = 0;
+  try {
+    frames = rig::generate_recording(scenario, recording.string(), marking, scanner, vision::RenderSettings{}, g);
+  } catch (const rig::GenerationStopped& e) {
+    std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
+    return 128 + e.signal;
+  }
   if (options.progress) std::cerr << "markcell sim: " << frames << " stereo frames; replaying through the cell\n";
   return replay_command(config, recording.string(), out, options);
 }
@@ -654,6 +672,11 @@ int main(int argc, char** argv) {
     return code == 0 ? 0 : kExitConfig;
   }
 
+  // Only `run`, `sim` and `replay` take SIGTERM and SIGINT themselves (to stop in order,
+  // outputs safe, reports marked); every other command is ended by them at once, as by
+  // default (a recording cut short has no recording.yaml, so is no recording).
+  if (!*run && !*sim && !*replay) pthread_sigmask(SIG_UNBLOCK, &signals, nullptr);
+
   try {
     if (*check) return check_config_command(check_file);
     if (*calibrate) return calibrate_stereo_command(cal_images, cal_board, cal_square, cal_out);
@@ -681,7 +704,10 @@ int main(int argc, char** argv) {
     if (*sim || *replay) {
       const auto config = load_or_report(rig_config);
       if (!config) return kExitConfig;
+      // A stop asked for ends the run at its next step, with its report marked partial.
+      StopSignalWatcher stop(signals);
       rig::ReplayOptions options;
+      options.stop = &stop.signal();
       options.progress = !quiet;
       options.both_predictors = !one_predictor;
       options.draw_arm = !no_arm;

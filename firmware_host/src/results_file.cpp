@@ -146,6 +146,12 @@ std::string ResultsFile::rejected_json(const std::string& cell, const std::strin
          ", \"rejected\": " + quote(reason) + "}";
 }
 
+std::string ResultsFile::late_json(const std::string& cell, std::uint64_t serial, const std::string& panel_id) {
+  return "{\"cell\": " + quote(cell) + ", \"panel\": " + std::to_string(serial) + ", \"panel_id\": " + quote(panel_id) +
+         ", \"late\": true, \"fault\": true, \"reason\": \"results file not written in time: the result above reached "
+         "the disk after the PLC was told fault\"}";
+}
+
 std::string ResultsFile::interrupted_json(const std::string& cell, const std::string& panel_id) {
   return "{\"cell\": " + quote(cell) + ", \"panel_id\": " + quote(panel_id) +
          ", \"interrupted\": true, \"fault\": true, \"reason\": "

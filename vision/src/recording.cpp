@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -128,7 +129,7 @@ std::string strip_cr(std::string s) {
 }  // namespace
 
 RecordingWriter::RecordingWriter(std::string folder, RecordingManifest manifest)
-    : folder_(std::move(folder)), manifest_(std::move(manifest)) {
+    : folder_(std::move(folder)), manifest_(std::move(manifest)), uncaught_at_start_(std::uncaught_exceptions()) {
   if (fs::exists(fs::path(folder_) / "recording.yaml"))
     throw RecordingError(folder_ + ": already holds a recording (recording.yaml exists)");
   fs::create_directories(fs::path(folder_) / "left");
@@ -136,6 +137,7 @@ RecordingWriter::RecordingWriter(std::string folder, RecordingManifest manifest)
 }
 
 RecordingWriter::~RecordingWriter() {
+  if (std::uncaught_exceptions() > uncaught_at_start_) return;  // abandoned: see the header
   try {
     close();
   } catch (...) {

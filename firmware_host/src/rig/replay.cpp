@@ -1,4 +1,5 @@
 #include "markcell/host/rig/replay.hpp"
+#include "markcell/host/stop_signal.hpp"
 
 #include <unistd.h>
 
@@ -128,19 +129,28 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
                  p.defect_count, static_cast<unsigned long long>(cell.vision_stats()->frames), tty ? "   " : "\n");
   };
   PlcScript script(options.plc_events);
+  int stopped_by = 0;
+  const auto stop_asked = [&] {
+    if (stopped_by == 0 && options.stop != nullptr) stopped_by = options.stop->load(std::memory_order_acquire);
+    return stopped_by != 0;
+  };
+  // Bounded steps, so that a stop asked for is seen within 100 ms of simulated time (a few
+  // hundred ms of computing at most) or 5 ms of real time.
   const auto run_until = [&](Nanos t) {
     if (clock == nullptr) {  // real time: the lanes run on their own, the PLC is polled here
-      for (Nanos n = now(); n < t; n = now()) std::this_thread::sleep_for(std::chrono::nanoseconds(std::min<Nanos>(t - n, millis(5))));
+      for (Nanos n = now(); n < t && !stop_asked(); n = now())
+        std::this_thread::sleep_for(std::chrono::nanoseconds(std::min<Nanos>(t - n, millis(5))));
       return;
     }
-    if (clock->run_until(t) == control::SimClock::RunResult::kWedged)
-      throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock->global_now())) + " s");
+    for (Nanos n = clock->global_now(); n < t && !stop_asked(); n = clock->global_now())
+      if (clock->run_until(std::min(t, n + millis(100))) == control::SimClock::RunResult::kWedged)
+        throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock->global_now())) + " s");
   };
   // Time runs to `t`, stopping at each scripted PLC event on the way (script times are
   // from the start).
   const auto apply = [&](const PlcEvent& ev) { drive(ev.line, ev.level); };
   auto run_to = [&](Nanos t) {
-    for (;;) {
+    while (!stop_asked()) {
       const Nanos n = now();
       const Nanos wait = script.until_next(n - start, t - n + 1);  // past t when none is left
       if (n + wait > t) break;
@@ -150,23 +160,26 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     run_until(t);
   };
   script.apply_due(0, apply);
-  for (Nanos t = start + seconds(1); marking.panels_completed() == 0; t += seconds(1)) {
+  for (Nanos t = start + seconds(1); marking.panels_completed() == 0 && !stop_asked(); t += seconds(1)) {
     run_to(std::min(t, end));
     progress(now());
     if (t >= end) break;
   }
-  // The panel leaves the station with the recording's end.
+  // The panel leaves the station with the recording's end (or with the stop).
   drive(LineRole::kPlcPanelPresent, false);
-  for (Nanos t = end + seconds(1); marking.panels_completed() == 0 && t <= end + options.tail; t += seconds(1)) {
+  for (Nanos t = end + seconds(1); marking.panels_completed() == 0 && t <= end + options.tail && !stop_asked(); t += seconds(1)) {
     run_to(t);
     progress(t);
   }
+  const Nanos stopped_at = now() - start;
   if (options.progress && tty) std::fprintf(stderr, "\n");
   cell.shutdown(control::FaultCode::kShutdown, "rig", "replay finished");
   if (peer) peer->stop();
 
   PredictorRun run;
   run.predictor = predictor;
+  run.stopped_by = stopped_by;
+  run.stopped_at = stopped_by != 0 ? stopped_at : 0;
   run.panel = marking.current();
   run.vision = *cell.vision_stats();
   run.frames_skipped = source.skipped();
@@ -319,7 +332,16 @@ ReplayReport replay_recording(const CellConfig& config, const std::string& recor
   }
   std::vector<std::string> kinds{config.marking.predictor};
   if (options.both_predictors) kinds.push_back(config.marking.predictor == "kalman" ? "two-frame" : "kalman");
-  for (const auto& k : kinds) report.runs.push_back(run_once(config, recording, job, k, options, rec));
+  for (const auto& k : kinds) {
+    report.runs.push_back(run_once(config, recording, job, k, options, rec));
+    const PredictorRun& r = report.runs.back();
+    if (r.stopped_by != 0) {  // the other predictor's run is not begun
+      char at[64];
+      std::snprintf(at, sizeof at, " at t=%.3f s of the ", to_seconds(r.stopped_at));
+      report.stopped = signal_name(r.stopped_by) + at + r.predictor + " run";
+      break;
+    }
+  }
   return report;
 }
 

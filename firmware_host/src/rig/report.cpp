@@ -328,6 +328,8 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
   std::ofstream out(json);
   out << "{\n  \"scenario\": " << quote(report.scenario) << ",\n  \"recording\": " << quote(report.recording)
       << ",\n  \"panel_type\": " << quote(report.panel_type) << ",\n  \"devices\": " << quote(report.devices) << ",\n";
+  // A run stopped by a signal is partial: said first, so no reader takes it for whole.
+  out << "  \"stopped\": " << (report.stopped.empty() ? std::string("null") : quote(report.stopped)) << ",\n";
   out << "  \"index_problems\": [";
   for (std::size_t i = 0; i < report.index_problems.size(); ++i) out << (i ? ", " : "") << quote(report.index_problems[i]);
   out << "],\n";
@@ -356,6 +358,8 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
 std::string report_table(const ReplayReport& report, const std::vector<std::string>& files) {
   std::ostringstream o;
   char line[256];
+  if (!report.stopped.empty())
+    o << "STOPPED by " << report.stopped << ": a partial run; its figures count only what was done by then\n";
   // Index lines the reader refused are not in the replay: said first, each one.
   if (!report.index_problems.empty()) {
     o << "frames.csv: " << report.index_problems.size() << " line(s) refused, not replayed:\n";

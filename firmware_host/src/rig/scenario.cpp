@@ -1,4 +1,5 @@
 #include "markcell/host/rig/scenario.hpp"
+#include "markcell/host/stop_signal.hpp"
 
 #include <cmath>
 #include <random>
@@ -163,6 +164,10 @@ std::size_t generate_recording(const Scenario& s, const std::string& folder, con
     vision::RecordingWriter writer(folder, m);
     const auto frames = static_cast<std::uint64_t>(std::floor(to_seconds(duration) * fps)) + 1;
     for (std::uint64_t i = 0; i < frames; ++i) {
+      if (const int sig = options.stop != nullptr ? options.stop->load(std::memory_order_acquire) : 0; sig != 0)
+        throw GenerationStopped(folder + ": rendering stopped by " + signal_name(sig) + " after " + std::to_string(i) + " of " +
+                                    std::to_string(frames) + " frames; the folder is not a recording (no recording.yaml)",
+                                sig);
       const Nanos t = static_cast<Nanos>(std::llround(static_cast<double>(i) * 1e9 / fps));
       const Eigen::Isometry3d X = motion.X_CamR_Panel(t);
       writer.add_truth(i, t, X);

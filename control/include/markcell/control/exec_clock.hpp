@@ -28,6 +28,10 @@ class ExecClock {
   virtual bool simulated() const = 0;
   // Time as seen by `lane` (in a simulated run, including the time it has consumed).
   virtual Nanos now(int lane) const = 0;
+  // The calling thread's own CPU time (a task's execution time: what it computed, not
+  // the time the kernel or the hypervisor kept it off its core, which the lane's wake
+  // latency and deadline misses measure). Simulated: the same as now().
+  virtual Nanos cpu_now(int lane) const { return now(lane); }
   // Blocks `lane` until `t`. Returns kStopped, early, once stop() was called.
   virtual WakeResult sleep_until(int lane, Nanos t) = 0;
   // Models execution time in a simulated run; nothing on the real clock (real work takes
@@ -40,6 +44,7 @@ class RealClock final : public ExecClock {
  public:
   bool simulated() const override { return false; }
   Nanos now(int) const override { return monotonic_now(); }
+  Nanos cpu_now(int) const override;
   WakeResult sleep_until(int lane, Nanos t) override;
   void consume(int, Nanos) override {}
   void stop() override { stopped_.store(true, std::memory_order_release); }

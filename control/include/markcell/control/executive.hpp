@@ -92,7 +92,11 @@ struct TraceEvent {
 };
 
 struct TaskStats {
-  Histogram exec;                      // execution time
+  Histogram exec;                      // execution time: the lane thread's CPU time in the task
+  // The longest a run took from its start to its end on the monotonic clock: the
+  // execution time plus whatever kept the thread off its core meanwhile (interrupts, a
+  // higher priority, the hypervisor).
+  std::atomic<Nanos> wall_max{0};
   std::atomic<std::uint64_t> overruns{0};
   std::atomic<std::uint64_t> deadline_misses{0};  // finished after its next release
   std::atomic<std::uint64_t> skipped{0};          // releases not run (degraded or late lane)

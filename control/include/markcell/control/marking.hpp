@@ -232,8 +232,12 @@ class MarkingSequence {
   // Completed panels, newest last (wait-free for a reader on another lane).
   TripleBuffer<PanelResult>& results() { return results_; }
   std::uint64_t panels_completed() const { return completed_.load(std::memory_order_acquire); }
-  // From the results writer (another thread): result `serial` is on disk.
-  void acknowledge_result(std::uint64_t serial) { acked_.store(serial, std::memory_order_release); }
+  // From the results writer (another thread), once result `serial` is on disk and synced.
+  // True: the PLC hears the result as written. False: the sequence had given up waiting
+  // (result_ack_timeout) and told the PLC fault first; the writer then appends that
+  // (ResultsFile::late_json), so that the file's last line on the panel is what the PLC
+  // heard. One atomic decides which came first, so the two never disagree.
+  bool acknowledge_result(std::uint64_t serial);
   // Read after the run (simulated cells, tests).
   const PanelResult& current() const { return result_; }
   std::size_t prediction_samples() const { return std::min(prediction_count_, kPredictionLog); }
@@ -293,7 +297,9 @@ class MarkingSequence {
   PanelResult result_;
   TripleBuffer<PanelResult> results_;
   std::atomic<std::uint64_t> completed_{0};
-  std::atomic<std::uint64_t> acked_{0};
+  // The latest result's fate: 2 * serial once written in time, 2 * serial + 1 once the
+  // sequence gave up waiting for it (set by compare-and-swap from either side).
+  std::atomic<std::uint64_t> result_fate_{0};
   std::uint32_t reset_serial_ = 0;
   std::uint32_t job_serial_ = 0;        // the panel's job, for the vision lane's fits
   std::uint32_t serial_at_reset_ = 0;   // tracker serial when the search was asked for

@@ -43,6 +43,28 @@ struct ArmState {
   bool fault() const { return (flags & kFault) != 0; }
 };
 
+// How long the arm has been silent, counted only while the controller listened. A poll
+// later than kListeningGap after the previous one (its lane late: preempted, stalled, or
+// the simulated arm on that same lane held with it) moves the timer on by the gap: the
+// arm is not blamed for the controller's own absence, and whatever it sent meanwhile
+// waits in the socket's queue for that very poll. An arm silent while the controller
+// listens is lost within the timeout as before.
+class SilenceTimer {
+ public:
+  static constexpr Nanos kListeningGap = millis(5);
+  void start(Nanos now) { heard_ = last_poll_ = now; }
+  void polled(Nanos now) {  // first thing in each poll
+    const Nanos gap = now - last_poll_;
+    if (gap > kListeningGap) heard_ = heard_ + gap < now ? heard_ + gap : now;
+    last_poll_ = now;
+  }
+  void heard(Nanos now) { heard_ = now; }
+  Nanos silent_for(Nanos now) const { return now - heard_; }
+
+ private:
+  Nanos heard_ = 0, last_poll_ = 0;
+};
+
 enum class ArmLinkStatus : std::uint8_t {
   kInactive,       // not activated
   kConnecting,     // activated, no state from the arm yet

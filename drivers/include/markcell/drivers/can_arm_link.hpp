@@ -48,7 +48,7 @@ class CanArmLink final : public ArmLink {
   ArmLinkCounters counters_;
   std::uint8_t next_seq_ = 0;
   canopen::NmtState arm_nmt_ = canopen::NmtState::kBootUp;
-  Nanos last_heartbeat_ = 0;
+  SilenceTimer heartbeat_silence_;
   Nanos next_own_heartbeat_ = 0;
   bool have_heartbeat_ = false;
   bool have_state_ = false;

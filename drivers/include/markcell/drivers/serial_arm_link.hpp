@@ -50,7 +50,7 @@ class SerialArmLink final : public ArmLink {
     Nanos sent_at = 0;
     int tries = 0;
   } pending_;
-  Nanos last_state_ = 0;
+  SilenceTimer state_silence_;
   bool have_state_ = false;
   bool refused_ = false;
   bool no_ack_ = false;

@@ -11,6 +11,7 @@
 // path is checked to still be this file (device, inode, not unlinked): a results file
 // removed or replaced by something else is a fault, not a silent write into a deleted
 // inode; one rotated away (a new regular file at the path) is reopened.
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -38,6 +39,10 @@ class ResultsFile {
   // A record the drop folder rejected (moved to `record`), with the reason.
   static std::string rejected_json(const std::string& cell, const std::string& record, const std::string& panel_id,
                                    const std::string& reason);
+  // Appended after a panel's result line that reached the disk only after the marking
+  // sequence had stopped waiting for it and told the PLC fault: the panel's last line is
+  // then what the PLC heard (a fault), never a done the PLC did not hear.
+  static std::string late_json(const std::string& cell, std::uint64_t serial, const std::string& panel_id);
   // The result written at start-up for such a panel: a fault, with the reason.
   static std::string interrupted_json(const std::string& cell, const std::string& panel_id);
 

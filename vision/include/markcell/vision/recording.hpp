@@ -58,7 +58,9 @@ struct TruthDefect {
 class RecordingWriter {
  public:
   // Creates the folder (it must not hold a recording already) and writes the manifest
-  // when closed.
+  // when closed. Destroyed by an exception (a write failed, a stop was asked for) it
+  // writes nothing more: without recording.yaml the folder is no recording, rather than
+  // a shorter one that looks whole.
   RecordingWriter(std::string folder, RecordingManifest manifest);
   ~RecordingWriter();
   void add(std::uint64_t seq, Nanos time, const cv::Mat& left, const cv::Mat& right);
@@ -74,6 +76,7 @@ class RecordingWriter {
   std::vector<TruthPose> truth_;
   std::vector<TruthDefect> defects_;
   bool closed_ = false;
+  int uncaught_at_start_ = 0;
 };
 
 // What the frame source hands out: both images, or why the frame was dropped.

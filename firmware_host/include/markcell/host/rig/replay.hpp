@@ -12,6 +12,7 @@
 //
 // Each run replays the recording once per predictor (the configured one first, then the
 // other), so both are reported from the same frames.
+#include <atomic>
 #include <optional>
 #include <string>
 #include <vector>
@@ -46,6 +47,10 @@ struct ReplayOptions {
   // With gpio_sim, for an arm on a serial line: the line's other end, where the rig's arm
   // answers (a second port with a null-modem cable, or socat's other pty).
   std::string arm_serial_peer;
+  // Set (to the signal's number) when the user asks the run to stop (StopSignalWatcher):
+  // looked at every 100 ms of simulated time (every 5 ms in real time); the run then ends
+  // there, reported as stopped, and the other predictor's run is not made.
+  const std::atomic<int>* stop = nullptr;
 };
 
 struct TimedPoint {
@@ -87,6 +92,8 @@ struct PredictorRun {
   std::vector<control::PanelFrameRecord> panel_frames;
   std::vector<TimedPoint> truth_samples;        // the same defect's true position at each sample
   std::string command_log;                      // every command to the arm and the valve, simulated time
+  int stopped_by = 0;                           // the signal that ended the run early (0: it ran to its end)
+  Nanos stopped_at = 0;                         // when, from the run's start
 };
 
 struct ReplayReport {
@@ -96,6 +103,9 @@ struct ReplayReport {
   std::string devices = "simulated";            // what the cell ran on, and its clock with it
   std::vector<std::string> index_problems;      // frames.csv lines refused (not replayed), with why
   std::vector<PredictorRun> runs;               // runs[0]: the configured predictor
+  // A run stopped by a signal: the report is partial (its score counts what was done by
+  // then) and says so, by the signal's name; empty when every run ran to its end.
+  std::string stopped;
 };
 
 // Throws (naming the file and what is wrong) when the recording or the configuration

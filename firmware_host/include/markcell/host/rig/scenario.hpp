@@ -13,7 +13,9 @@
 //   calibration-board a checkerboard on the gripper at the configured robot poses (15
 //                     in the example), the camera where the configured X_Base_CamR is
 //                     not quite: what `markcell calibrate-base` must find
+#include <atomic>
 #include <cstdint>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -60,6 +62,15 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed);
 struct GenerateOptions {
   Nanos max_duration = -1;   // shorten the scenario (tests); -1: whole
   double fps = -1;           // override the frame rate; -1: the scenario's
+  // Looked at before each frame: non-zero (a signal's number) throws GenerationStopped.
+  const std::atomic<int>* stop = nullptr;
+};
+
+// Rendering stopped by a signal: the folder holds the frames rendered so far and no
+// recording.yaml (so it is not a recording).
+struct GenerationStopped : std::runtime_error {
+  GenerationStopped(const std::string& what, int sig) : std::runtime_error(what), signal(sig) {}
+  int signal = 0;
 };
 
 // Writes the scenario to `folder` as a recording: frames (those not dropped), truth,

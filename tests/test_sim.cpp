@@ -431,7 +431,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
 }
 
-TEST_CASE("a panel's result is written and synced before the PLC hears done; without it fault, and a late line says so") {
+TEST_CASE("a panel's result is written and synced before the PLC hears done, without it fault, and a late line says so") {
   const auto rec = vision::Recording::open(sim_dir() + "/recording");
   const auto pairs = [&] { return decoded_pairs(rec); };
   test::TempDir dir;

@@ -52,13 +52,21 @@ TEST_CASE("2 s at 1 kHz on the real clock: every tick accounted for, statistics 
   CHECK(lane.wake_latency.min() >= 0);
 }
 
-TEST_CASE("stop() returns within one period plus the longest budget") {
+namespace {
+// One lane at 1 kHz with one task "t": the spec the single-task cases below share.
+ExecutiveSpec one_task_spec(std::uint32_t period_ticks, Nanos budget, OverrunPolicy policy) {
   ExecutiveSpec spec;
   spec.tick = millis(1);
   spec.lanes = {{"control", -1, 0}};
-  spec.tasks = {{"t", 0, 100, 0, millis(20), OverrunPolicy::kLog}};
+  spec.tasks = {{"t", 0, period_ticks, 0, budget, policy}};
   spec.lane_stall_limit = millis(1000);
   spec.supervisor_period = millis(100);
+  return spec;
+}
+}  // namespace
+
+TEST_CASE("stop() returns within one period plus the longest budget") {
+  const ExecutiveSpec spec = one_task_spec(100, millis(20), OverrunPolicy::kLog);
   RealClock clock;
   FaultLog log;
   SafeStop safe(log);
@@ -80,12 +88,7 @@ TEST_CASE("the budget is on the task's own CPU time: kept off its core is no ove
   // own CPU time (measured by the same clock as the reference).
   for (const bool spin : {false, true}) {
     CAPTURE(spin);
-    ExecutiveSpec spec;
-    spec.tick = millis(1);
-    spec.lanes = {{"control", -1, 0}};
-    spec.tasks = {{"t", 0, 20, 0, micros(500), OverrunPolicy::kSafeStop}};
-    spec.lane_stall_limit = millis(1000);
-    spec.supervisor_period = millis(100);
+    const ExecutiveSpec spec = one_task_spec(20, micros(500), OverrunPolicy::kSafeStop);
     RealClock clock;
     FaultLog log;
     SafeStop safe(log);

@@ -9,12 +9,13 @@
 #include <opencv2/core/eigen.hpp>
 
 #include "alloc_guard.hpp"
+#include "markcell/common/geometry.hpp"
 #include "markcell/vision/calibration_io.hpp"
-#include "markcell/vision/geometry.hpp"
 #include "markcell/vision/render.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
+using namespace markcell::geometry;
 using namespace markcell::vision;
 
 namespace {

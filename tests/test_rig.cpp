@@ -174,8 +174,8 @@ TEST_CASE("scoring: the panel where it is at the moment of spraying, tilted nozz
   CHECK(s.false_sprays == 1);
 }
 
+#include "markcell/common/geometry.hpp"
 #include "markcell/host/rig/inspection.hpp"
-#include "markcell/vision/geometry.hpp"
 #include "test_files.hpp"
 
 TEST_CASE("the inspection station's record: macro-features as its scanner triangulates them, defects as point clusters") {
@@ -217,7 +217,7 @@ TEST_CASE("the inspection station's record: macro-features as its scanner triang
   const Eigen::Isometry3d X_CamR_Panel = facing(-0.2225, 0.0, 3.1);
   std::vector<Eigen::Vector3d> mf_CamR;
   for (const auto& mf : door.macro_features) mf_CamR.push_back(X_CamR_Panel * mf);
-  const auto fit = markcell::vision::fit_rigid(noisy.macro_features_SL, mf_CamR);
+  const auto fit = markcell::geometry::fit_rigid(noisy.macro_features_SL, mf_CamR);
   REQUIRE(fit.valid);
   CHECK(fit.rms > 0);
   CHECK(fit.rms < 0.004);

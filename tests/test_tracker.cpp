@@ -287,7 +287,7 @@ TEST_CASE("disparity to 0.05 px, MF positions in P averaged over frames, a pose 
         est.push_back(e.reference_P[static_cast<std::size_t>(i)]);
         truth.push_back(s.motion.X_CamR_Panel(0) * s.panel.macro_features[static_cast<std::size_t>(i)]);
       }
-    return fit_rigid(est, truth).rms;
+    return markcell::geometry::fit_rigid(est, truth).rms;
   };
   cv::Mat l, r;
   double sq = 0;

@@ -5,7 +5,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "markcell/vision/geometry.hpp"
+#include "markcell/common/geometry.hpp"
 
 namespace markcell::control {
 
@@ -94,7 +94,7 @@ BaseCalibration calibrate_base(const std::vector<BoardObservation>& observations
   // poses on a rig whose residuals are all small).
   std::vector<bool> keep(observations.size(), true);
   Pairs p = pair_up(observations, corners, X_Tool_Board, keep);
-  vision::RigidFit fit = vision::fit_rigid(p.a_CamR, p.b_Base);
+  geometry::RigidFit fit = geometry::fit_rigid(p.a_CamR, p.b_Base);
   if (!fit.valid) {
     out.status = BaseCalibrationStatus::kDegenerate;
     out.reason = "the board corners of all poses are (nearly) collinear";
@@ -114,7 +114,7 @@ BaseCalibration calibrate_base(const std::vector<BoardObservation>& observations
   if (kept < limits.min_poses) return too_few(kept);
   if (kept < static_cast<int>(observations.size())) {
     p = pair_up(observations, corners, X_Tool_Board, keep);
-    fit = vision::fit_rigid(p.a_CamR, p.b_Base);
+    fit = geometry::fit_rigid(p.a_CamR, p.b_Base);
     residuals(observations, corners, X_Tool_Board, fit.X_B_A, out);
   }
   for (std::size_t k = 0; k < observations.size(); ++k) out.poses[k].outlier = !keep[k];

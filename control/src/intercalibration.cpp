@@ -5,7 +5,7 @@
 
 #include <Eigen/Eigenvalues>
 
-#include "markcell/vision/geometry.hpp"
+#include "markcell/common/geometry.hpp"
 
 namespace markcell::control {
 
@@ -50,10 +50,10 @@ Intercalibration intercalibrate(std::span<const Eigen::Vector3d> mfs_SL, std::sp
   }
   r.paired = static_cast<int>(n);
   if (r.paired < limits.min_points) return r;
-  vision::RobustFitOptions options;
+  geometry::RobustFitOptions options;
   options.inlier_threshold = limits.inlier_threshold;
-  const vision::RigidFit fit =
-      vision::fit_rigid_robust(std::span(a.data(), n), std::span(b.data(), n), options, std::span(inlier.data(), n));
+  const geometry::RigidFit fit =
+      geometry::fit_rigid_robust(std::span(a.data(), n), std::span(b.data(), n), options, std::span(inlier.data(), n));
   if (!fit.valid) {
     r.status = IntercalibrationStatus::kDegenerate;
     return r;

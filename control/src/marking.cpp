@@ -40,7 +40,7 @@ std::string_view to_string(MarkingState s) {
 MarkingSequence::MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve,
                                  drivers::GpioLines& lines, const PlcLineMap& plc, const PlcIo& plc_io,
                                  TripleBuffer<MarkingEstimate>& estimates,
-                                 TripleBuffer<TrackerRequest>& tracker_requests)
+                                 TripleBuffer<msg::TrackerRequest>& tracker_requests)
     : params_(params),
       arm_(arm),
       valve_(valve),
@@ -232,10 +232,10 @@ void MarkingSequence::start_panel(Nanos now) {
   state_ = MarkingState::kAcquire;
 }
 
-void fit_pose_to_record(const TrackerRequest& job, const vision::PoseEstimate& e, const IntercalibrationLimits& limits,
+void fit_pose_to_record(const msg::TrackerRequest& job, const msg::PoseEstimate& e, const IntercalibrationLimits& limits,
                         PoseFits& out) noexcept {
   out.job_serial = job.job_serial;
-  const auto n = static_cast<std::size_t>(std::clamp(std::min(job.mf_count, e.count), 0, vision::kMaxMacroFeatures));
+  const auto n = static_cast<std::size_t>(std::clamp(std::min(job.mf_count, e.count), 0, msg::kMaxMacroFeatures));
   out.known = intercalibrate(std::span(job.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
                              std::span(e.reference_known.data(), n), limits);
   out.measured_mask.fill(false);
@@ -248,7 +248,7 @@ void fit_pose_to_record(const TrackerRequest& job, const vision::PoseEstimate& e
                                 std::span(out.measured_mask.data(), n), limits);
 }
 
-void MarkingSequence::write_tracker_request(TrackerRequest& req) const {
+void MarkingSequence::write_tracker_request(msg::TrackerRequest& req) const {
   req.reset_serial = reset_serial_;
   req.panel_type = job_.panel_type_index;
   req.job_serial = job_serial_;
@@ -258,15 +258,15 @@ void MarkingSequence::write_tracker_request(TrackerRequest& req) const {
 
 void MarkingSequence::request_search() {
   // Ask the vision lane for a fresh search; poses of the previous P no longer count.
-  TrackerRequest& req = tracker_requests_.write_slot();
-  req = TrackerRequest{};
+  msg::TrackerRequest& req = tracker_requests_.write_slot();
+  req = msg::TrackerRequest{};
   ++reset_serial_;
   write_tracker_request(req);
   tracker_requests_.publish();
   serial_at_reset_ = latest_serial_;
 }
 
-void MarkingSequence::on_estimate(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now) {
+void MarkingSequence::on_estimate(const msg::PoseEstimate& e, const PoseFits& fits, Nanos now) {
   latest_serial_ = std::max(latest_serial_, e.reference_serial);
   const auto marking = [this] {
     return state_ == MarkingState::kAcquire || state_ == MarkingState::kHold || state_ == MarkingState::kApproach ||
@@ -297,7 +297,7 @@ void MarkingSequence::on_estimate(const vision::PoseEstimate& e, const PoseFits&
   }
   // The MFs the fit used set the filter's measurement noise (their layout: how well the
   // pose is pinned down in each direction).
-  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> used{};
+  std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> used{};
   std::size_t n = 0;
   for (int i = 0; i < e.count; ++i)
     if (e.mfs[static_cast<std::size_t>(i)].inlier) used[n++] = e.reference_P[static_cast<std::size_t>(i)];
@@ -404,7 +404,7 @@ void MarkingSequence::hold(Nanos now, int mfs_in_view) {
   if (every_defect_placed() || now >= hold_until_ || hold_fewer_mfs_ >= 3) next_defect(now);
 }
 
-bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now) {
+bool MarkingSequence::intercalibrate_panel(const msg::PoseEstimate& e, const PoseFits& fits, Nanos now) {
   const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
   if (panel_frame_count_ < kPanelFrameLog) {
     PanelFrameRecord& frame = panel_frame_log_[panel_frame_count_++];
@@ -462,9 +462,9 @@ bool MarkingSequence::intercalibrate_panel(const vision::PoseEstimate& e, const 
   return true;
 }
 
-void MarkingSequence::place_unmeasured_mfs(const vision::PoseEstimate& e, const Intercalibration& ic) {
+void MarkingSequence::place_unmeasured_mfs(const msg::PoseEstimate& e, const Intercalibration& ic) {
   const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
-  TrackerRequest& req = tracker_requests_.write_slot();
+  msg::TrackerRequest& req = tracker_requests_.write_slot();
   write_tracker_request(req);
   req.reference_serial = e.reference_serial;
   req.placement_serial = ++placement_serial_;
@@ -489,7 +489,7 @@ void MarkingSequence::place_tools(const Intercalibration& ic) {
   }
 }
 
-void MarkingSequence::refine_intercalibration(const vision::PoseEstimate& e, const PoseFits& fits) {
+void MarkingSequence::refine_intercalibration(const msg::PoseEstimate& e, const PoseFits& fits) {
   // A panel that enters the view shows a few MFs on its leading edge when P is set up;
   // fitted to those alone, the inter-calibration's rotation error is levered out to the
   // defects beyond them. The other MFs come into view, are tracked, and their positions

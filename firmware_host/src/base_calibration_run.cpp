@@ -10,13 +10,13 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "markcell/common/geometry.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "markcell/drivers/camera.hpp"
 #include "markcell/drivers/can_arm_link.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/json.hpp"
 #include "markcell/host/record.hpp"
-#include "markcell/vision/geometry.hpp"
 #include "markcell/vision/render.hpp"
 
 namespace markcell::host {

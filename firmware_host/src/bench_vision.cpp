@@ -64,7 +64,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
   for (int i = 0; i < options.frames; ++i) {
     const auto k = static_cast<std::size_t>(i);
     const Nanos t0 = monotonic_now();
-    const vision::PoseEstimate& e = tracker.process(k, static_cast<Nanos>(static_cast<double>(i) * 1e9 / fps), left[k], right[k]);
+    const msg::PoseEstimate& e = tracker.process(k, static_cast<Nanos>(static_cast<double>(i) * 1e9 / fps), left[k], right[k]);
     const Nanos t1 = monotonic_now();
     cv::buildOpticalFlowPyramid(left[k], pyr_l, cv::Size(config.vision.lk_window_px, config.vision.lk_window_px),
                                 config.vision.pyramid_levels - 1);
@@ -73,7 +73,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
     const Nanos t2 = monotonic_now();
     // As in the cell, where the inter-calibration places the MFs the search did not find
     // (here from the rig's truth), so that they are picked up as they come into view.
-    if (e.status == vision::TrackStatus::kReinitialised) {
+    if (e.status == msg::TrackStatus::kReinitialised) {
       const Nanos t = static_cast<Nanos>(static_cast<double>(i) * 1e9 / fps) % scenario.duration;
       for (int m = 0; m < model.count; ++m)
         if (!tracker.reference_known()[static_cast<std::size_t>(m)])

@@ -84,7 +84,7 @@ control::TaskResult Cell::SimWorld::task(control::TaskContext& ctx, void* self) 
 control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self) {
   auto* v = static_cast<VisionTask*>(self);
   if (v->requests->update()) {
-    const control::TrackerRequest& r = v->requests->read();
+    const msg::TrackerRequest& r = v->requests->read();
     v->job.job_serial = r.job_serial;
     v->job.mf_count = r.mf_count;
     v->job.mfs_SL = r.mfs_SL;
@@ -98,7 +98,7 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
       v->hint_seen = r.placement_serial;
       // Placed anew: MFs the tracker has no position for, or only a placed one it has not
       // measured yet; never one it has measured.
-      for (std::size_t i = 0; i < vision::kMaxMacroFeatures; ++i)
+      for (std::size_t i = 0; i < msg::kMaxMacroFeatures; ++i)
         if (r.known[i] && (!t.reference_known()[i] || t.last().reference_observed[i] == 0))
           t.set_reference(static_cast<int>(i), r.reference_P[i]);
     }
@@ -125,7 +125,7 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
     return control::TaskResult::kOk;
   }
   if (v->overlay != nullptr) v->overlay->apply(f);
-  const vision::PoseEstimate& e = v->trackers[static_cast<std::size_t>(v->active)]->process(f.seq, f.time, *f.left, *f.right);
+  const msg::PoseEstimate& e = v->trackers[static_cast<std::size_t>(v->active)]->process(f.seq, f.time, *f.left, *f.right);
   if (e.has_pose()) ++v->stats.poses;
   if (v->overlay != nullptr) {
     v->stats.arm_drawn = v->overlay->painted();
@@ -237,7 +237,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
   };
   if (!config.calibration.base.empty()) X_Base_CamR_ = vision::load_pose(config.calibration.base, "X_Base_CamR");
   estimates_ = std::make_unique<TripleBuffer<control::MarkingEstimate>>();
-  tracker_requests_ = std::make_unique<TripleBuffer<control::TrackerRequest>>();
+  tracker_requests_ = std::make_unique<TripleBuffer<msg::TrackerRequest>>();
   if (has_task("vision")) {
     rig_ = std::make_unique<vision::StereoRig>(vision::load_stereo_calibration(config.calibration.stereo));
     vision::TrackerParams tp;

@@ -611,7 +611,7 @@ void read_vision(Reader& r, const YAML::Node& node, VisionConfig& v) {
   r.integer(node, P, "lk_window_px", v.lk_window_px, 5, 2 * vision::kMaxLkRadius + 1, false);
   if (v.lk_window_px % 2 == 0) r.error(node["lk_window_px"], P + ".lk_window_px", "must be odd (a window centred on the point)");
   r.integer(node, P, "pyramid_levels", v.pyramid_levels, 3, vision::kMaxPyramidLevels, false);
-  r.integer(node, P, "min_macro_features", v.min_macro_features, 3, vision::kMaxMacroFeatures, false);
+  r.integer(node, P, "min_macro_features", v.min_macro_features, 3, msg::kMaxMacroFeatures, false);
   r.number(node, P, "inlier_mm", v.inlier_mm, 0.1, 100.0, false);
   r.number(node, P, "depth_min_m", v.depth_min_m, 0.1, 50.0, false);
   r.number(node, P, "depth_max_m", v.depth_max_m, 0.1, 50.0, false);

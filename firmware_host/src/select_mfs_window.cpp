@@ -50,8 +50,8 @@ struct Selection {
       drag_from = mfs[static_cast<std::size_t>(near)];
       return;
     }
-    if (mfs.size() >= static_cast<std::size_t>(vision::kMaxMacroFeatures)) {
-      say("no more than " + std::to_string(vision::kMaxMacroFeatures) + " macro-features");
+    if (mfs.size() >= static_cast<std::size_t>(msg::kMaxMacroFeatures)) {
+      say("no more than " + std::to_string(msg::kMaxMacroFeatures) + " macro-features");
       return;
     }
     Eigen::Vector2d q = p;

@@ -6,20 +6,10 @@
 #include <opencv2/core/persistence.hpp>
 
 #include "markcell/common/check.hpp"
+#include "markcell/common/geometry.hpp"
 #include "markcell/vision/calibration_io.hpp"
-#include "markcell/vision/geometry.hpp"
 
 namespace markcell::vision {
-
-std::string_view to_string(TrackStatus s) {
-  switch (s) {
-    case TrackStatus::kTracking: return "tracking";
-    case TrackStatus::kReinitialised: return "reinitialised";
-    case TrackStatus::kSearching: return "searching";
-    case TrackStatus::kLost: return "lost";
-  }
-  return "?";
-}
 
 namespace {
 int coarse_scale() { return 1 << kCoarseLevel; }
@@ -380,13 +370,13 @@ void PanelTracker::fit_pose() {
     which[n++] = i;
   }
   estimate_.tracked = static_cast<int>(n);
-  RigidFit fit;
+  geometry::RigidFit fit;
   if (static_cast<int>(n) >= params_.min_macro_features) {
-    RobustFitOptions options;
+    geometry::RobustFitOptions options;
     options.inlier_threshold = params_.inlier_m;
     options.max_iterations = params_.ransac_iterations;
     options.seed = estimate_.seq + 1;
-    fit = fit_rigid_robust(std::span(a.data(), n), std::span(b.data(), n), options, std::span(inlier.data(), n));
+    fit = geometry::fit_rigid_robust(std::span(a.data(), n), std::span(b.data(), n), options, std::span(inlier.data(), n));
   }
   if (!fit.valid || fit.used < params_.min_macro_features) {
     estimate_.status = TrackStatus::kLost;
@@ -437,7 +427,7 @@ void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
     mean[n] = sum_P_[k] / samples_[k];
     first[n++] = first_P_[k];
   }
-  const RigidFit pin = fit_rigid(std::span(mean.data(), n), std::span(first.data(), n));
+  const geometry::RigidFit pin = geometry::fit_rigid(std::span(mean.data(), n), std::span(first.data(), n));
   if (!pin.valid) return;
   for (int i = 0; i < model_.count; ++i) {
     const auto k = static_cast<std::size_t>(i);

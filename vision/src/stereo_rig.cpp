@@ -101,7 +101,7 @@ double StereoRig::epipolar_distance(const Eigen::Vector2d& xL, const Eigen::Vect
 }
 
 Eigen::Vector3d StereoRig::triangulate_observed(const Eigen::Vector2d& xL, const Eigen::Vector2d& xR) const {
-  return triangulate(P_L_, P_R_, undistort(Camera::kLeft, xL), undistort(Camera::kRight, xR));
+  return geometry::triangulate(P_L_, P_R_, undistort(Camera::kLeft, xL), undistort(Camera::kRight, xR));
 }
 
 }  // namespace markcell::vision

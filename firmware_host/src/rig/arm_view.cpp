@@ -65,7 +65,7 @@ void ArmOverlay::apply(vision::StereoFrameRef& frame) noexcept {
   ++painted_;
 }
 
-int ArmOverlay::hidden_macro_features(const vision::PoseEstimate& e) const noexcept {
+int ArmOverlay::hidden_macro_features(const msg::PoseEstimate& e) const noexcept {
   if (!drawn_ || !e.has_pose()) return 0;
   int hidden = 0;
   for (int i = 0; i < e.count; ++i) {

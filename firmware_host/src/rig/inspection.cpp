@@ -3,7 +3,7 @@
 #include <cmath>
 #include <random>
 
-#include "markcell/vision/geometry.hpp"
+#include "markcell/common/geometry.hpp"
 
 namespace markcell::host::rig {
 
@@ -19,14 +19,14 @@ InspectionRecord simulate_inspection(const std::string& panel_id, const vision::
   // CamL_SL is the scanner's frame: its left camera is the origin, the right one sits
   // at X_CamR_CamL of the scanner's calibration.
   const Eigen::Isometry3d X_CamR_SL = scanner.X_CamR_CamL;
-  vision::ProjectionMatrix P_left = vision::ProjectionMatrix::Zero(), P_right;
+  geometry::ProjectionMatrix P_left = geometry::ProjectionMatrix::Zero(), P_right;
   P_left.leftCols<3>() = scanner.left.K;
   P_right = scanner.right.K * X_CamR_SL.matrix().topRows<3>();
   for (const auto& mf : panel.macro_features) {
     const Eigen::Vector3d p_SL = X_SL_Panel * mf;
     const Eigen::Vector2d xl = vision::project_point(scanner.left, p_SL) + Eigen::Vector2d(pixel(rng), pixel(rng));
     const Eigen::Vector2d xr = vision::project_point(scanner.right, X_CamR_SL * p_SL) + Eigen::Vector2d(pixel(rng), pixel(rng));
-    r.macro_features_SL.push_back(vision::triangulate(P_left, P_right, xl, xr));
+    r.macro_features_SL.push_back(geometry::triangulate(P_left, P_right, xl, xr));
   }
   for (const auto& d : defects) {
     InspectionDefect out;

@@ -10,14 +10,14 @@
 #include <stdexcept>
 #include <thread>
 
+#include "markcell/common/geometry.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "markcell/drivers/gpiod_lines.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/rig/hil_peer.hpp"
 #include "markcell/vision/frame_source.hpp"
-#include "markcell/vision/geometry.hpp"
 #include "markcell/vision/recording.hpp"
 #include "markcell/vision/render.hpp"
-#include "markcell/host/rig/hil_peer.hpp"
 
 namespace markcell::host::rig {
 
@@ -264,10 +264,10 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
       }
     // Robust: a search can take another corner for an MF (a person in front); the
     // inter-calibration leaves it out, and so does this.
-    std::array<bool, vision::kMaxMacroFeatures> inlier{};
-    vision::RobustFitOptions robust;
+    std::array<bool, msg::kMaxMacroFeatures> inlier{};
+    geometry::RobustFitOptions robust;
     robust.inlier_threshold = 0.01;
-    const vision::RigidFit fit = vision::fit_rigid_robust(a, b, robust, std::span(inlier.data(), a.size()));
+    const geometry::RigidFit fit = geometry::fit_rigid_robust(a, b, robust, std::span(inlier.data(), a.size()));
     placements.emplace_back(frame.reference_time, fit.valid ? fit.X_B_A : Eigen::Isometry3d::Identity());
   }
   auto X_P_CamRref = [&](Nanos reference_time) {  // identity for a P not logged

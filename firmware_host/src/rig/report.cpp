@@ -10,9 +10,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "markcell/common/log_escape.hpp"
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/host/json.hpp"
-#include "markcell/common/log_escape.hpp"
 #include "markcell/host/rig/replay.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -241,8 +241,8 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
     for (std::size_t i = 0; i < std::min<std::size_t>(rec.size(), 60); ++i) {
       const vision::ReplayFrame f = rec.read(i);
       if (f.dropped) continue;
-      const vision::PoseEstimate& e = tracker.process(f.seq, f.time, f.left, f.right);
-      if (e.status != vision::TrackStatus::kReinitialised) continue;
+      const msg::PoseEstimate& e = tracker.process(f.seq, f.time, f.left, f.right);
+      if (e.status != msg::TrackStatus::kReinitialised) continue;
       cv::Mat l = to_bgr(f.left), r = to_bgr(f.right), both;
       for (int k = 0; k < e.count; ++k) {
         const auto& o = e.mfs[static_cast<std::size_t>(k)];

@@ -30,7 +30,8 @@
 #include "markcell/control/spray_valve.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "markcell/drivers/arm.hpp"
-#include "markcell/vision/panel_tracker.hpp"
+#include "markcell/msg/pose_estimate.hpp"
+#include "markcell/msg/tracker_request.hpp"
 
 namespace markcell::control {
 
@@ -43,7 +44,7 @@ struct PanelJob {
   FixedString<31> panel_type;
   int panel_type_index = 0;  // in the configuration's panel_types: which tracker
   int mf_count = 0;
-  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> mfs_SL{};
+  std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> mfs_SL{};
   struct Defect {
     int id = 0;
     int count = 0;
@@ -165,28 +166,8 @@ struct PredictionSample {
 struct PanelFrameRecord {
   Nanos reference_time = 0;
   int count = 0;
-  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> mfs_P{};
-  std::array<bool, vision::kMaxMacroFeatures> found{};
-};
-
-// Control lane -> vision lane: start a new panel, and MF positions the tracker did not
-// find itself (from the inspection record through the inter-calibration).
-struct TrackerRequest {
-  std::uint32_t reset_serial = 0;      // a change asks for a new search
-  int panel_type = 0;                  // of this panel type
-  std::uint32_t reference_serial = 0;  // the tracker's P these positions belong to
-  // Changes with every new set of positions: each refit of the inter-calibration places
-  // the MFs the tracker has not measured itself again, more surely than the last (the
-  // first fit levers its few MFs' noise out to the far ones by more than the tracker's
-  // re-acquisition accepts).
-  std::uint32_t placement_serial = 0;
-  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> reference_P{};
-  std::array<bool, vision::kMaxMacroFeatures> known{};
-  // The panel's record as the vision lane needs it to fit each pose to it (PoseFits):
-  // which job (0: none), and the record's MFs in the scanner's frame.
-  std::uint32_t job_serial = 0;
-  int mf_count = 0;
-  std::array<Eigen::Vector3d, vision::kMaxMacroFeatures> mfs_SL{};
+  std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> mfs_P{};
+  std::array<bool, msg::kMaxMacroFeatures> found{};
 };
 
 // An MF's position in P counts as measured once averaged over this many frames.
@@ -197,20 +178,20 @@ inline constexpr int kMeasuredFrames = 10;
 // control lane's marking task, budget 200 us, on a loaded machine.) The marking sequence
 // takes the one its state asks for; the fit is the same function on the same inputs.
 struct PoseFits {
-  std::uint32_t job_serial = 0;  // TrackerRequest::job_serial these are for; 0: none made
+  std::uint32_t job_serial = 0;  // msg::TrackerRequest::job_serial these are for; 0: none made
   Intercalibration known;        // over every MF with a position in P (a new P)
   Intercalibration measured;     // over the MFs measured in kMeasuredFrames frames or more (a refit)
   int measured_count = 0;
-  std::array<bool, vision::kMaxMacroFeatures> measured_mask{};
+  std::array<bool, msg::kMaxMacroFeatures> measured_mask{};
 };
 
 struct MarkingEstimate {
-  vision::PoseEstimate pose;
+  msg::PoseEstimate pose;
   PoseFits fits;
 };
 
 // On the vision lane, with each pose of a panel whose record is known: bounded, no allocation.
-void fit_pose_to_record(const TrackerRequest& job, const vision::PoseEstimate& e, const IntercalibrationLimits& limits,
+void fit_pose_to_record(const msg::TrackerRequest& job, const msg::PoseEstimate& e, const IntercalibrationLimits& limits,
                         PoseFits& out) noexcept;
 
 class MarkingSequence {
@@ -219,7 +200,7 @@ class MarkingSequence {
   static constexpr std::size_t kPanelFrameLog = 16;
   MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve, drivers::GpioLines& lines,
                   const PlcLineMap& plc, const PlcIo& plc_io, TripleBuffer<MarkingEstimate>& estimates,
-                  TripleBuffer<TrackerRequest>& tracker_requests);
+                  TripleBuffer<msg::TrackerRequest>& tracker_requests);
 
   // From the record reader (another thread): one record waits; false when one already does.
   bool offer_job(const PanelJob& job);
@@ -247,17 +228,17 @@ class MarkingSequence {
   const PanelFrameRecord& panel_frame(std::size_t i) const { return panel_frame_log_[i]; }
 
  private:
-  void on_estimate(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now);
+  void on_estimate(const msg::PoseEstimate& e, const PoseFits& fits, Nanos now);
   void start_panel(Nanos now);
   // False: no usable P (the panel failed, or a new search was asked for). `now`: the
   // control lane's time (e.time is the frame's, a vision latency earlier).
-  bool intercalibrate_panel(const vision::PoseEstimate& e, const PoseFits& fits, Nanos now);
+  bool intercalibrate_panel(const msg::PoseEstimate& e, const PoseFits& fits, Nanos now);
   void request_search();
-  void refine_intercalibration(const vision::PoseEstimate& e, const PoseFits& fits);
-  void write_tracker_request(TrackerRequest& req) const;
+  void refine_intercalibration(const msg::PoseEstimate& e, const PoseFits& fits);
+  void write_tracker_request(msg::TrackerRequest& req) const;
   void place_tools(const Intercalibration& ic);
   // The MFs the tracker has not measured, placed through the record, for it to pick up.
-  void place_unmeasured_mfs(const vision::PoseEstimate& e, const Intercalibration& ic);
+  void place_unmeasured_mfs(const msg::PoseEstimate& e, const Intercalibration& ic);
   void next_defect(Nanos now);
   void approach(Nanos now, const TaskContext& ctx);
   void finish_panel(Nanos now);
@@ -287,7 +268,7 @@ class MarkingSequence {
   const PlcLineMap plc_;
   const PlcIo& plc_io_;
   TripleBuffer<MarkingEstimate>& estimates_;
-  TripleBuffer<TrackerRequest>& tracker_requests_;
+  TripleBuffer<msg::TrackerRequest>& tracker_requests_;
   PosePredictor predictor_;
 
   std::atomic<bool> job_waiting_{false};

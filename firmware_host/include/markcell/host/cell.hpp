@@ -8,16 +8,16 @@
 #include <string>
 #include <vector>
 
+#include "markcell/control/arm_supervision.hpp"
 #include "markcell/control/exec_clock.hpp"
 #include "markcell/control/executive.hpp"
 #include "markcell/control/faults.hpp"
-#include "markcell/control/arm_supervision.hpp"
-#include "markcell/control/plc_io.hpp"
 #include "markcell/control/marking.hpp"
+#include "markcell/control/plc_io.hpp"
 #include "markcell/control/spray_valve.hpp"
 #include "markcell/drivers/can_arm_link.hpp"
-#include "markcell/drivers/serial_arm_link.hpp"
 #include "markcell/drivers/gpio.hpp"
+#include "markcell/drivers/serial_arm_link.hpp"
 #include "markcell/drivers/watchdog_device.hpp"
 #include "markcell/host/command_log.hpp"
 #include "markcell/host/config.hpp"
@@ -167,10 +167,10 @@ class Cell {
     rig::ArmOverlay* overlay = nullptr;  // the rig's arm painted over each pair
     std::vector<std::unique_ptr<vision::PanelTracker>> trackers;  // one per panel type
     TripleBuffer<control::MarkingEstimate>* estimates = nullptr;
-    TripleBuffer<control::TrackerRequest>* requests = nullptr;
+    TripleBuffer<msg::TrackerRequest>* requests = nullptr;
     control::FaultLog* faults = nullptr;
     // The panel's record (from the last request) and the limits its fits are made with.
-    control::TrackerRequest job;
+    msg::TrackerRequest job;
     control::IntercalibrationLimits limits;
     int active = 0;
     std::uint32_t reset_seen = 0;
@@ -191,7 +191,7 @@ class Cell {
   std::unique_ptr<vision::FrameSource> frame_source_;
   std::unique_ptr<rig::ArmOverlay> arm_overlay_;
   std::unique_ptr<TripleBuffer<control::MarkingEstimate>> estimates_;
-  std::unique_ptr<TripleBuffer<control::TrackerRequest>> tracker_requests_;
+  std::unique_ptr<TripleBuffer<msg::TrackerRequest>> tracker_requests_;
   std::unique_ptr<VisionTask> vision_;
   std::unique_ptr<control::MarkingSequence> marking_;
   std::unique_ptr<SimWorld> sim_world_;

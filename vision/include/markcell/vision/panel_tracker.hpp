@@ -22,12 +22,19 @@
 #include <opencv2/core.hpp>
 
 #include "markcell/common/time.hpp"
+#include "markcell/msg/pose_estimate.hpp"
 #include "markcell/vision/optical_flow.hpp"
 #include "markcell/vision/stereo_rig.hpp"
 
 namespace markcell::vision {
 
-inline constexpr int kMaxMacroFeatures = 16;
+// The messages this task publishes are leaves in common/ (msg/), read by control/.
+using msg::kMaxMacroFeatures;
+using msg::MacroFeatureObservation;
+using msg::PoseEstimate;
+using msg::TrackStatus;
+using msg::to_string;
+
 inline constexpr int kTemplateRadius = 7;  // 15x15 template patches
 
 // A panel type's MFs as the installation engineer picked them on a reference image of
@@ -72,45 +79,6 @@ struct TrackerParams {
   int lost_frames_to_reinit = 15;   // frames without a pose before the MFs are searched anew
   int ransac_iterations = 64;
   int reference_samples = 256;      // frames averaged into each MF's position in P
-};
-
-enum class TrackStatus : std::uint8_t {
-  kTracking,        // pose from tracked MFs
-  kReinitialised,   // MFs found anew this frame; X_CamR_P is the identity
-  kSearching,       // no panel found (reason says why)
-  kLost,            // too few MFs this frame; pose is the last one
-};
-std::string_view to_string(TrackStatus status);
-
-struct MacroFeatureObservation {
-  bool valid = false;     // seen in both views this frame
-  bool inlier = false;    // and consistent with the rigid motion
-  Eigen::Vector2d left = Eigen::Vector2d::Zero(), right = Eigen::Vector2d::Zero();  // observed pixels
-  Eigen::Vector3d p_CamR = Eigen::Vector3d::Zero();
-};
-
-struct PoseEstimate {
-  std::uint64_t seq = 0;
-  Nanos time = 0;                   // capture time of the frame pair
-  TrackStatus status = TrackStatus::kSearching;
-  std::string_view reason;          // why there is no pose (static text)
-  std::uint32_t reference_serial = 0;  // changes whenever P is set up anew
-  Nanos reference_time = 0;            // capture time of the frame that set P up
-  Eigen::Isometry3d X_CamR_P = Eigen::Isometry3d::Identity();
-  int tracked = 0;                  // MFs seen in both views
-  int inliers = 0;                  // MFs used for the pose
-  double rms = 0;                   // residual of the rigid fit, metres
-  std::array<MacroFeatureObservation, kMaxMacroFeatures> mfs{};
-  // The MFs' positions in P (where known): what the inter-calibration pairs with the
-  // inspection record. Copied with every estimate so that a reader across lanes never
-  // needs the tracker itself.
-  std::array<Eigen::Vector3d, kMaxMacroFeatures> reference_P{};
-  std::array<bool, kMaxMacroFeatures> reference_known{};
-  // Frames each MF was seen in and used since P was set up (its position in P averages
-  // them); 0 for an MF only placed through the inspection record so far.
-  std::array<int, kMaxMacroFeatures> reference_observed{};
-  int count = 0;                    // MFs of the panel type
-  bool has_pose() const { return status == TrackStatus::kTracking || status == TrackStatus::kReinitialised; }
 };
 
 class PanelTracker {

@@ -8,8 +8,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "markcell/common/geometry.hpp"
 #include "markcell/vision/calibration_io.hpp"
-#include "markcell/vision/geometry.hpp"
 
 namespace markcell::vision {
 
@@ -20,7 +20,7 @@ class StereoRig {
   explicit StereoRig(const StereoCalibration& calibration);
 
   const StereoCalibration& calibration() const { return calibration_; }
-  const ProjectionMatrix& P(Camera c) const { return c == Camera::kLeft ? P_L_ : P_R_; }
+  const geometry::ProjectionMatrix& P(Camera c) const { return c == Camera::kLeft ? P_L_ : P_R_; }
   // x_R^T F x_L = 0 for undistorted pixels of the same point.
   const Eigen::Matrix3d& F() const { return F_; }
   int width() const { return calibration_.left.width; }
@@ -30,7 +30,7 @@ class StereoRig {
   // image planes coplanar with horizontal epipolar lines, and the new projections. A
   // point's rectified pixel in either view has the same row.
   const Eigen::Matrix3d& R_rect(Camera c) const { return c == Camera::kLeft ? R1_ : R2_; }
-  const ProjectionMatrix& P_rect(Camera c) const { return c == Camera::kLeft ? P1_ : P2_; }
+  const geometry::ProjectionMatrix& P_rect(Camera c) const { return c == Camera::kLeft ? P1_ : P2_; }
   Eigen::Vector2d rectify(Camera c, const Eigen::Vector2d& observed_px) const;
   // Undistorted pixel of a distorted (observed) one: the iterative inversion OpenCV's
   // undistortPoints uses, with a fixed number of rounds.
@@ -47,10 +47,10 @@ class StereoRig {
   const CameraModel& model(Camera c) const { return c == Camera::kLeft ? calibration_.left : calibration_.right; }
   StereoCalibration calibration_;
   std::array<double, 5> dist_L_{}, dist_R_{};  // k1 k2 p1 p2 k3
-  ProjectionMatrix P_L_, P_R_;
+  geometry::ProjectionMatrix P_L_, P_R_;
   Eigen::Matrix3d F_;
   Eigen::Matrix3d R1_, R2_;
-  ProjectionMatrix P1_, P2_;
+  geometry::ProjectionMatrix P1_, P2_;
   Eigen::Isometry3d X_CamL_CamR_;
 };
 

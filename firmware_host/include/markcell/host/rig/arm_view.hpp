@@ -45,7 +45,7 @@ class ArmOverlay {
   std::uint64_t painted() const { return painted_; }
   // Of the panel's MFs whose place the estimate knows, how many the arm drawn into the
   // last pair hides from either camera (what the closed loop costs the tracker).
-  int hidden_macro_features(const vision::PoseEstimate& estimate) const noexcept;
+  int hidden_macro_features(const msg::PoseEstimate& estimate) const noexcept;
 
  private:
   vision::StereoRenderer renderer_;

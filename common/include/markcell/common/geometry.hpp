@@ -9,7 +9,7 @@
 
 #include <Eigen/Geometry>
 
-namespace markcell::vision {
+namespace markcell::geometry {
 
 using ProjectionMatrix = Eigen::Matrix<double, 3, 4>;
 
@@ -43,4 +43,4 @@ struct RobustFitOptions {
 RigidFit fit_rigid_robust(std::span<const Eigen::Vector3d> a, std::span<const Eigen::Vector3d> b,
                           const RobustFitOptions& options, std::span<bool> inlier);
 
-}  // namespace markcell::vision
+}  // namespace markcell::geometry

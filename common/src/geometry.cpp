@@ -1,4 +1,4 @@
-#include "markcell/vision/geometry.hpp"
+#include "markcell/common/geometry.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -7,7 +7,7 @@
 
 #include "markcell/common/splitmix.hpp"
 
-namespace markcell::vision {
+namespace markcell::geometry {
 
 Eigen::Vector3d triangulate(const ProjectionMatrix& P1, const ProjectionMatrix& P2, const Eigen::Vector2d& x1,
                             const Eigen::Vector2d& x2) {
@@ -103,4 +103,4 @@ RigidFit fit_rigid_robust(std::span<const Eigen::Vector3d> a, std::span<const Ei
   return fit_rigid(std::span<const Eigen::Vector3d>(ia.data(), m), std::span<const Eigen::Vector3d>(ib.data(), m));
 }
 
-}  // namespace markcell::vision
+}  // namespace markcell::geometry

@@ -210,10 +210,10 @@ TEST_CASE("capacity: the reach window is the chord of the reach sphere, a slow l
   const double depth = 3.1;
   // The nozzles' path in the base frame: a line; its distance h from the base origin
   // gives the chord 2 sqrt(R^2 - h^2) the line travels within reach.
-  const Eigen::Vector3d o = X_Base_CamR * Eigen::Vector3d(0, 0, depth - config.marking.standoff_m);
+  const Eigen::Vector3d o = X_Base_CamR * Eigen::Vector3d(0, 0, depth - config.marking.standoff);
   const Eigen::Vector3d dir =
       (X_Base_CamR.linear() *
-       Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1], config.marking.line_direction[2]))
+       config.marking.line_direction_CamR)
           .normalized();
   const double h = (o - o.dot(dir) * dir).norm();
   const double chord = 2 * std::sqrt(config.arm.limits.reach * config.arm.limits.reach - h * h);

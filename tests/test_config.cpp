@@ -4,6 +4,9 @@
 #include <sys/stat.h>
 
 #include <filesystem>
+#include <numbers>
+#include <sstream>
+#include <type_traits>
 #include <string>
 
 #include "markcell/host/cell.hpp"
@@ -75,6 +78,43 @@ std::string replace(std::string s, const std::string& from, const std::string& t
   return s.replace(at, from.size(), to);
 }
 
+// Every parameter a struct declares, as (key, stored value as text): to compare two
+// instances key by key.
+struct ParamValues {
+  std::vector<std::pair<std::string, std::string>> values;
+  template <typename T>
+  void operator()(const Param& p, T& field) {
+    std::ostringstream os;
+    os.precision(17);
+    if constexpr (std::is_same_v<T, Eigen::Vector3d>) os << field.transpose();
+    else os << field;
+    values.emplace_back(std::string(p.key), os.str());
+  }
+  template <typename E, std::size_t N>
+  void operator()(const Param& p, Choice<E, N> c) {
+    values.emplace_back(std::string(p.key), std::to_string(static_cast<int>(c.value)));
+  }
+};
+template <class Params>
+std::vector<std::pair<std::string, std::string>> param_values(Params params) {
+  ParamValues v;
+  params.Visit(v);
+  return v.values;
+}
+
+// The keys written in one top-level section of a YAML text (its lines indented by two).
+std::vector<std::string> section_keys(const std::string& text, const std::string& section) {
+  std::vector<std::string> keys;
+  std::istringstream in(text);
+  bool inside = false;
+  for (std::string line; std::getline(in, line);) {
+    if (!line.empty() && line[0] != ' ' && line[0] != '#') inside = line.rfind(section + ":", 0) == 0;
+    else if (inside && line.size() > 2 && line[2] != ' ' && line[2] != '#' && line.find(':') != std::string::npos)
+      keys.push_back(line.substr(2, line.find(':') - 2));
+  }
+  return keys;
+}
+
 std::vector<std::string> messages(const std::vector<ConfigError>& errors) {
   std::vector<std::string> out;
   for (const auto& e : errors) out.push_back(e.to_string());
@@ -98,8 +138,69 @@ TEST_CASE("the example configuration loads") {
   CHECK(std::filesystem::exists(cfg.calibration.base));
   REQUIRE(cfg.panel_types.size() == 2);
   CHECK(std::filesystem::exists(cfg.panel_types[0].file));
-  CHECK(cfg.marking.predictor == "kalman");
+  CHECK(cfg.marking.predictor.kind == control::PredictorKind::kKalman);
   CHECK(cfg.vision.epipolar_px == 1.0);
+}
+
+// The example documents the defaults of its `vision:` and `marking:` sections ("all
+// keys optional; these are the defaults"): they are declared once, in TrackerParams and
+// MarkingParams; this holds the two together, key by key and in both directions.
+TEST_CASE("the example's vision and marking sections are the declared defaults, every key written") {
+  const std::string example = test::source_path("config/cell.example.yaml");
+  const auto cfg = load_config(example, task_catalog());
+  CHECK(param_values(cfg.vision) == param_values(vision::TrackerParams{}));
+  CHECK(param_values(cfg.marking) == param_values(control::MarkingParams{}));
+  const std::string text = test::read_file(example);
+  const auto keys = [](auto params) {
+    std::vector<std::string> k;
+    for (const auto& [key, value] : param_values(params)) k.push_back(key);
+    std::sort(k.begin(), k.end());
+    return k;
+  };
+  auto written_vision = section_keys(text, "vision"), written_marking = section_keys(text, "marking");
+  std::sort(written_vision.begin(), written_vision.end());
+  std::sort(written_marking.begin(), written_marking.end());
+  CHECK(written_vision == keys(vision::TrackerParams{}));
+  CHECK(written_marking == keys(control::MarkingParams{}));
+}
+
+TEST_CASE_METHOD(Fixture, "parameters are converted once from the configuration's units to SI") {
+  const auto cfg = load_config_text(kValid + R"(vision: {lk_window_px: 15, inlier_mm: 2.5, depth_max_m: 6}
+marking: {settle_mm: 2, settle_deg: 30, plan_settle_ms: 250, defect_timeout_s: 1.5, predictor: two-frame,
+          line_direction: [0, 1, 0], placement_limit_mm: 4}
+)", dir.write("cell.yaml", ""), task_catalog());
+  CHECK(cfg.vision.lk.radius == 7);  // a 15-pixel window
+  CHECK(cfg.vision.inlier_m == 2.5 / 1000.0);
+  CHECK(cfg.vision.depth_max == 6.0);
+  CHECK(cfg.vision.depth_min == vision::TrackerParams{}.depth_min);  // not given: the default
+  CHECK(cfg.marking.settle_position == 0.002);
+  CHECK(cfg.marking.settle_angle == Approx(std::numbers::pi / 6));
+  CHECK(cfg.marking.timing.settle == millis(250));
+  CHECK(cfg.marking.timing.defect_timeout == millis(1500));
+  CHECK(cfg.marking.predictor.kind == control::PredictorKind::kTwoFrame);
+  CHECK(cfg.marking.line_direction_CamR == Eigen::Vector3d::UnitY());
+  CHECK(cfg.marking.intercalibration.max_placement_sigma == 0.004);
+  CHECK(cfg.marking.standoff == control::MarkingParams{}.standoff);
+}
+
+TEST_CASE_METHOD(Fixture, "declared parameters: range, parity and cross-field errors with their position") {
+  const auto m = messages(check(kValid + R"(vision:
+  lk_window_px: 20
+  depth_min_m: 5
+  depth_max_m: 4
+marking:
+  settle_deg: 45
+  predictor: kalmann
+  line_direction: [0.1, 0, 0]
+  spray_ms: 3
+)"));
+  REQUIRE(m.size() == 6);
+  CHECK(m[0] == file() + ":41:17: vision.lk_window_px: must be odd (a window centred on the point)");
+  CHECK(m[1] == file() + ":43:16: vision.depth_max_m: must be greater than depth_min_m");
+  CHECK(m[2].rfind(file() + ":48:3: marking.spray_ms: unknown key 'spray_ms' (expected one of: standoff_m, command_lead_ms,", 0) == 0);
+  CHECK(m[3] == file() + ":45:15: marking.settle_deg: expected a number in [0.01, 30], got 45");
+  CHECK(m[4] == file() + ":46:14: marking.predictor: expected one of: kalman, two-frame, got \"kalmann\"");
+  CHECK(m[5] == file() + ":47:19: marking.line_direction: must be a unit vector (the line's travel in CamR)");
 }
 
 TEST_CASE_METHOD(Fixture, "a valid configuration has no error") { CHECK(check(kValid).empty()); }

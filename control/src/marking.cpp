@@ -37,11 +37,20 @@ std::string_view to_string(MarkingState s) {
   return "?";
 }
 
+namespace {
+// The configuration gives the line's direction as written; the sequence sorts defects
+// along it as a unit vector.
+MarkingParams with_unit_line_direction(MarkingParams p) {
+  p.line_direction_CamR.normalize();
+  return p;
+}
+}  // namespace
+
 MarkingSequence::MarkingSequence(const MarkingParams& params, drivers::ArmLink& arm, SprayValve& valve,
                                  drivers::GpioLines& lines, const PlcLineMap& plc, const PlcIo& plc_io,
                                  TripleBuffer<MarkingEstimate>& estimates,
                                  TripleBuffer<msg::TrackerRequest>& tracker_requests)
-    : params_(params),
+    : params_(with_unit_line_direction(params)),
       arm_(arm),
       valve_(valve),
       lines_(lines),
@@ -332,7 +341,7 @@ void MarkingSequence::plan_panel(Nanos now) {
     r.plan = e.verdict;
     if (e.verdict == PlanVerdict::kFeasible) {
       r.planned_spray = now + static_cast<Nanos>(e.spray_time * 1e9);
-      if (e.index == defect_) deadline_ = std::max(deadline_, r.planned_spray + params_.defect_timeout);
+      if (e.index == defect_) deadline_ = std::max(deadline_, r.planned_spray + params_.timing.defect_timeout);
     }
     if (e.verdict == PlanVerdict::kFeasible || e.verdict == PlanVerdict::kNotPlanned) continue;
     // Reported now, never attempted: the arm's time goes to the defects it can mark.
@@ -533,7 +542,7 @@ void MarkingSequence::next_defect(Nanos now) {
     r.approach_start = now;
     // A defect the plan expects later (the line has yet to bring it within reach) has
     // its timeout counted from then.
-    deadline_ = std::max(now, r.planned_spray) + params_.defect_timeout;
+    deadline_ = std::max(now, r.planned_spray) + params_.timing.defect_timeout;
     settled_since_ = -1;
     state_ = MarkingState::kApproach;
     return;
@@ -558,14 +567,14 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
     const Eigen::Isometry3d X = nozzle_in_base(predictor_.predict(now), defect_);
     r.skipped = !placed_now ? SkipReason::kPlacement
                 : !fresh ? SkipReason::kNoPrediction
-                : X.translation().norm() > params_.reach ? SkipReason::kOutOfReach : SkipReason::kNotSettled;
+                : X.translation().norm() > params_.timing.reach ? SkipReason::kOutOfReach : SkipReason::kNotSettled;
     next_defect(now);
     return;
   }
   if (!predictor_.ready()) return;
   const Nanos t_cmd = now + params_.command_lead;
   const Eigen::Isometry3d target = nozzle_in_base(predictor_.predict(t_cmd), defect_);
-  if (target.translation().norm() > params_.reach) {
+  if (target.translation().norm() > params_.timing.reach) {
     settled_since_ = -1;
     return;  // not (yet) reachable: wait, the line may bring it in
   }
@@ -589,7 +598,7 @@ void MarkingSequence::approach(Nanos now, const TaskContext& ctx) {
   if (settled_since_ < 0) settled_since_ = now;
   if (now - settled_since_ < params_.settle_time) return;
   const Nanos start = now + 1;  // the valve task opens it on its next run
-  if (valve_.request(start, params_.pulse, ctx.safe_stopped()) != PulseRequest::kAccepted) return;
+  if (valve_.request(start, params_.timing.pulse, ctx.safe_stopped()) != PulseRequest::kAccepted) return;
   r.spray_requested = start;
   r.predicted_centre_CamR = predictor_.predict(start) * tools_[static_cast<std::size_t>(defect_)].centre;
   state_ = MarkingState::kSpraying;

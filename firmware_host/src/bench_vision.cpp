@@ -41,12 +41,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
     return 2;
   }
   const vision::PanelTypeModel model = vision::load_panel_type(type_file);
-  vision::TrackerParams params;
-  params.lk.radius = config.vision.lk_window_px / 2;
-  params.pyramid_levels = config.vision.pyramid_levels;
-  params.epipolar_px = config.vision.epipolar_px;
-  params.min_ncc = config.vision.min_ncc;
-  params.inlier_m = config.vision.inlier_mm / 1000.0;
+  const vision::TrackerParams& params = config.vision;
   vision::PanelTracker tracker(rig, model, params);
 
   // The frames are rendered ahead (not timed), in a ring the length of the run.
@@ -66,10 +61,10 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
     const Nanos t0 = monotonic_now();
     const msg::PoseEstimate& e = tracker.process(k, static_cast<Nanos>(static_cast<double>(i) * 1e9 / fps), left[k], right[k]);
     const Nanos t1 = monotonic_now();
-    cv::buildOpticalFlowPyramid(left[k], pyr_l, cv::Size(config.vision.lk_window_px, config.vision.lk_window_px),
-                                config.vision.pyramid_levels - 1);
-    cv::buildOpticalFlowPyramid(right[k], pyr_r, cv::Size(config.vision.lk_window_px, config.vision.lk_window_px),
-                                config.vision.pyramid_levels - 1);
+    cv::buildOpticalFlowPyramid(left[k], pyr_l, cv::Size(2 * params.lk.radius + 1, 2 * params.lk.radius + 1),
+                                params.pyramid_levels - 1);
+    cv::buildOpticalFlowPyramid(right[k], pyr_r, cv::Size(2 * params.lk.radius + 1, 2 * params.lk.radius + 1),
+                                params.pyramid_levels - 1);
     const Nanos t2 = monotonic_now();
     // As in the cell, where the inter-calibration places the MFs the search did not find
     // (here from the rig's truth), so that they are picked up as they come into view.

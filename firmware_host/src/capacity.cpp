@@ -14,13 +14,11 @@ Capacity marking_capacity(const CellConfig& config, const Eigen::Isometry3d& X_B
   Capacity c;
   c.speed = speed;
   c.spacing = spacing;
-  const Eigen::Vector3d dir_CamR =
-      Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1], config.marking.line_direction[2])
-          .normalized();
+  const Eigen::Vector3d dir_CamR = config.marking.line_direction_CamR.normalized();
   const Eigen::Vector3d dir = X_Base_CamR.linear() * dir_CamR;
   // The nozzle in front of a defect on the optical axis's height, at s along the line.
   const auto nozzle = [&](double s) {
-    return Eigen::Vector3d(X_Base_CamR * (Eigen::Vector3d(0, 0, depth - config.marking.standoff_m) + s * dir_CamR));
+    return Eigen::Vector3d(X_Base_CamR * (Eigen::Vector3d(0, 0, depth - config.marking.standoff) + s * dir_CamR));
   };
   // Along the line (s in metres) the nozzles are within reach for [enter, leave].
   double enter = 0, leave = 0;
@@ -51,7 +49,7 @@ std::string capacity_table(const CellConfig& config, const Eigen::Isometry3d& X_
   std::snprintf(line, sizeof line,
                 "arm: %.2f m/s, %.2f m/s^2, reach %.2f m; %.0f ms settle + %.0f ms pulse per defect; panel %.2f m from CamR\n",
                 config.arm.limits.max_tcp_speed, config.arm.limits.max_tcp_accel, config.arm.limits.reach,
-                to_seconds(config.marking.plan_settle) * 1e3, to_seconds(config.spray.pulse) * 1e3, depth);
+                to_seconds(config.marking.timing.settle) * 1e3, to_seconds(config.spray.pulse) * 1e3, depth);
   t += line;
   std::snprintf(line, sizeof line, "a row of defects along the line on a %.2f m panel\n", length);
   t += line;

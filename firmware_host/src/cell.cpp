@@ -40,13 +40,11 @@ drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm) {
 }
 
 control::ArmTimingModel arm_timing_model(const CellConfig& config) {
-  control::ArmTimingModel m;
+  control::ArmTimingModel m = config.marking.timing;  // its plan settle and defect timeout
   m.max_speed = config.arm.limits.max_tcp_speed;
   m.max_accel = config.arm.limits.max_tcp_accel;
   m.reach = config.arm.limits.reach;
-  m.settle = config.marking.plan_settle;
   m.pulse = config.spray.pulse;
-  m.defect_timeout = config.marking.defect_timeout;
   return m;
 }
 
@@ -240,21 +238,10 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
   tracker_requests_ = std::make_unique<TripleBuffer<msg::TrackerRequest>>();
   if (has_task("vision")) {
     rig_ = std::make_unique<vision::StereoRig>(vision::load_stereo_calibration(config.calibration.stereo));
-    vision::TrackerParams tp;
-    tp.lk.radius = config.vision.lk_window_px / 2;
-    tp.pyramid_levels = config.vision.pyramid_levels;
-    tp.epipolar_px = config.vision.epipolar_px;
-    tp.min_ncc = config.vision.min_ncc;
-    tp.min_macro_features = config.vision.min_macro_features;
-    tp.inlier_m = config.vision.inlier_mm / 1000.0;
-    tp.depth_min = config.vision.depth_min_m;
-    tp.depth_max = config.vision.depth_max_m;
-    tp.forward_backward_px = config.vision.forward_backward_px;
-    tp.lost_frames_to_reinit = config.vision.lost_frames_to_reinit;
     vision_ = std::make_unique<VisionTask>();
     for (const auto& panel : config.panel_types) {
       panel_models_.push_back(vision::load_panel_type(panel.file));
-      vision_->trackers.push_back(std::make_unique<vision::PanelTracker>(*rig_, panel_models_.back(), tp));
+      vision_->trackers.push_back(std::make_unique<vision::PanelTracker>(*rig_, panel_models_.back(), config.vision));
     }
     if (config.cameras.source == CameraSource::kRecording) {
       // In real time the loader stands in for the cameras' receive threads: at the vision
@@ -286,33 +273,12 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     vision_->faults = &faults_;
   }
   if (has_task("marking")) {
-    control::MarkingParams mp;
+    // The `marking:` section as configured, and what other sections and files give it.
+    control::MarkingParams mp = config.marking;
     mp.X_Base_CamR = X_Base_CamR_;
-    mp.standoff = config.marking.standoff_m;
-    mp.reach = config.arm.limits.reach;
-    mp.command_lead = config.marking.command_lead;
-    mp.settle_position = config.marking.settle_mm / 1000.0;
-    mp.settle_angle = config.marking.settle_deg * M_PI / 180.0;
-    mp.settle_time = config.marking.settle;
-    mp.max_prediction_age = config.marking.max_prediction_age;
-    mp.pulse = config.spray.pulse;
-    mp.defect_timeout = config.marking.defect_timeout;
-    mp.acquire_timeout = config.marking.acquire_timeout;
-    mp.home_timeout = config.marking.home_timeout;
     mp.timing = arm_timing_model(config);
-    mp.record_timeout = config.marking.record_timeout;
-    mp.record_expiry = config.marking.record_expiry;
     mp.require_result_ack = !config.results_file.empty();
-    mp.line_direction_CamR = Eigen::Vector3d(config.marking.line_direction[0], config.marking.line_direction[1],
-                                             config.marking.line_direction[2]).normalized();
-    mp.intercalibration.max_abs_error = config.marking.intercalibration_limit_mm / 1000.0;
-    mp.intercalibration.max_placement_sigma = config.marking.placement_limit_mm / 1000.0;
     if (vision_) vision_->limits = mp.intercalibration;  // its fits are the marking sequence's
-    mp.placement_hold = config.marking.placement_hold;
-    mp.predictor.kind = config.marking.predictor == "two-frame" ? control::PredictorKind::kTwoFrame : control::PredictorKind::kKalman;
-    mp.predictor.accel_sigma = config.marking.accel_sigma;
-    mp.predictor.lateral_sigma = config.marking.lateral_sigma_mm / 1000.0;
-    mp.predictor.depth_sigma = config.marking.depth_sigma_mm / 1000.0;
     control::PlcLineMap lines;
     lines.busy = gpio_line(LineRole::kPlcBusy);
     lines.done = gpio_line(LineRole::kPlcDone);

@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "markcell/common/bounded_file.hpp"
+#include "markcell/common/param.hpp"
 
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -292,6 +293,8 @@ class Reader {
     }
     out = p.string();
   }
+
+  std::size_t error_count() const { return errors_.size(); }
 
  private:
   std::string file_;
@@ -601,71 +604,100 @@ void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
   }
 }
 
-void read_vision(Reader& r, const YAML::Node& node, VisionConfig& v) {
-  const std::string P = "vision";
-  if (!r.map(node, P, {"epipolar_px", "min_ncc", "lk_window_px", "pyramid_levels", "min_macro_features", "inlier_mm",
-                       "depth_min_m", "depth_max_m", "forward_backward_px", "lost_frames_to_reinit"}))
-    return;
-  r.number(node, P, "epipolar_px", v.epipolar_px, 0.05, 20.0, false);
-  r.number(node, P, "min_ncc", v.min_ncc, 0.0, 1.0, false);
-  r.integer(node, P, "lk_window_px", v.lk_window_px, 5, 2 * vision::kMaxLkRadius + 1, false);
-  if (v.lk_window_px % 2 == 0) r.error(node["lk_window_px"], P + ".lk_window_px", "must be odd (a window centred on the point)");
-  r.integer(node, P, "pyramid_levels", v.pyramid_levels, 3, vision::kMaxPyramidLevels, false);
-  r.integer(node, P, "min_macro_features", v.min_macro_features, 3, msg::kMaxMacroFeatures, false);
-  r.number(node, P, "inlier_mm", v.inlier_mm, 0.1, 100.0, false);
-  r.number(node, P, "depth_min_m", v.depth_min_m, 0.1, 50.0, false);
-  r.number(node, P, "depth_max_m", v.depth_max_m, 0.1, 50.0, false);
-  if (v.depth_min_m >= v.depth_max_m) r.error(node["depth_max_m"], P + ".depth_max_m", "must be greater than depth_min_m");
-  r.number(node, P, "forward_backward_px", v.forward_backward_px, 0.01, 10.0, false);
-  r.integer(node, P, "lost_frames_to_reinit", v.lost_frames_to_reinit, 1, 10'000, false);
-}
+// Reads the parameters a struct declares in its Visit() from one section of the YAML,
+// through the Reader (so every error keeps its FILE:LINE:COL: key.path: form). A key
+// left out keeps the field's declared default untouched; a key given is converted once
+// from the unit the configuration writes it in to the field's SI.
+class YamlParams {
+ public:
+  YamlParams(Reader& r, const YAML::Node& node, std::string path) : r_(r), node_(node), path_(std::move(path)) {}
 
-void read_marking(Reader& r, const YAML::Node& node, MarkingConfig& m) {
-  const std::string P = "marking";
-  if (!r.map(node, P, {"standoff_m", "command_lead_ms", "settle_mm", "settle_deg", "settle_ms", "max_prediction_age_ms",
-                       "defect_timeout_s", "acquire_timeout_s", "home_timeout_s", "predictor", "intercalibration_limit_mm",
-                       "placement_limit_mm", "placement_hold_s",
-                       "line_direction", "accel_sigma_m_s2", "lateral_sigma_mm", "depth_sigma_mm", "plan_settle_ms", "record_timeout_s", "record_expiry_s"}))
-    return;
-  r.number(node, P, "standoff_m", m.standoff_m, 0.01, 1.0, false);
-  // Absent keys keep the defaults of MarkingConfig.
-  long long lead = m.command_lead / 1'000'000, settle = m.settle / 1'000'000, age = m.max_prediction_age / 1'000'000;
-  long long plan_settle = m.plan_settle / 1'000'000;
-  r.integer(node, P, "plan_settle_ms", plan_settle, 0, 60'000, false);
-  double record = to_seconds(m.record_timeout);
-  r.number(node, P, "record_timeout_s", record, 0.1, 600.0, false);
-  m.record_timeout = static_cast<Nanos>(record * 1e9);
-  double expiry = to_seconds(m.record_expiry);
-  r.number(node, P, "record_expiry_s", expiry, 1.0, 86400.0, false);
-  m.record_expiry = static_cast<Nanos>(expiry * 1e9);
-  double defect = to_seconds(m.defect_timeout), acquire = to_seconds(m.acquire_timeout), home = to_seconds(m.home_timeout);
-  r.integer(node, P, "command_lead_ms", lead, 0, 1000, false);
-  r.number(node, P, "settle_mm", m.settle_mm, 0.05, 50.0, false);
-  r.number(node, P, "settle_deg", m.settle_deg, 0.01, 30.0, false);
-  r.integer(node, P, "settle_ms", settle, 0, 10'000, false);
-  r.integer(node, P, "max_prediction_age_ms", age, 1, 60'000, false);
-  r.number(node, P, "defect_timeout_s", defect, 0.1, 600.0, false);
-  r.number(node, P, "acquire_timeout_s", acquire, 0.1, 600.0, false);
-  r.number(node, P, "home_timeout_s", home, 0.1, 600.0, false);
-  r.choice(node, P, "predictor", m.predictor, {{"kalman", std::string("kalman")}, {"two-frame", std::string("two-frame")}}, false);
-  r.number(node, P, "intercalibration_limit_mm", m.intercalibration_limit_mm, 0.1, 1000.0, false);
-  r.number(node, P, "placement_limit_mm", m.placement_limit_mm, 0.1, 1000.0, false);
-  double hold = to_seconds(m.placement_hold);
-  r.number(node, P, "placement_hold_s", hold, 0.0, 600.0, false);
-  m.placement_hold = static_cast<Nanos>(hold * 1e9);
-  r.vec3(node, P, "line_direction", m.line_direction, -1.0, 1.0, false);
-  if (std::hypot(m.line_direction[0], m.line_direction[1], m.line_direction[2]) < 0.5)
-    r.error(node["line_direction"], P + ".line_direction", "must be a unit vector (the line's travel in CamR)");
-  r.number(node, P, "accel_sigma_m_s2", m.accel_sigma, 1e-6, 10.0, false);
-  r.number(node, P, "lateral_sigma_mm", m.lateral_sigma_mm, 1e-3, 100.0, false);
-  r.number(node, P, "depth_sigma_mm", m.depth_sigma_mm, 1e-3, 100.0, false);
-  m.command_lead = millis(lead);
-  m.settle = millis(settle);
-  m.plan_settle = millis(plan_settle);
-  m.max_prediction_age = millis(age);
-  m.defect_timeout = static_cast<Nanos>(defect * 1e9);
-  m.acquire_timeout = static_cast<Nanos>(acquire * 1e9);
-  m.home_timeout = static_cast<Nanos>(home * 1e9);
+  void operator()(const Param& p, double& field) {
+    if (!given(p)) return;
+    double v = 0;
+    r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok()) field = to_si(v, p.unit);
+  }
+  void operator()(const Param& p, int& field) {
+    if (!given(p)) return;
+    long long v = 0;
+    r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
+    if (!read_ok()) return;
+    if (p.unit == Unit::kOddWindowPx) {
+      if (v % 2 == 0) {
+        r_.error(node_[std::string(p.key)], key_path(p), "must be odd (a window centred on the point)");
+        return;
+      }
+      field = static_cast<int>(v / 2);
+    } else {
+      field = static_cast<int>(v);
+    }
+  }
+  void operator()(const Param& p, Nanos& field) {
+    if (!given(p)) return;
+    if (p.unit == Unit::kMillisecond) {
+      long long v = 0;
+      r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
+      if (read_ok()) field = millis(v);
+    } else {
+      double v = 0;
+      r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+      if (read_ok()) field = static_cast<Nanos>(v * 1e9);
+    }
+  }
+  void operator()(const Param& p, bool& field) {
+    if (given(p)) r_.boolean(node_, path_, std::string(p.key), field, false);
+  }
+  void operator()(const Param& p, Eigen::Vector3d& field) {
+    if (!given(p)) return;
+    std::array<double, 3> v{field.x(), field.y(), field.z()};
+    r_.vec3(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok()) field = Eigen::Vector3d(v[0], v[1], v[2]);
+  }
+  template <typename E, std::size_t N>
+  void operator()(const Param& p, Choice<E, N> c) {
+    if (!given(p)) return;
+    std::vector<std::pair<std::string, E>> options;
+    for (const auto& o : c.options) options.emplace_back(std::string(o.name), o.value);
+    r_.choice(node_, path_, std::string(p.key), c.value, options, false);
+  }
+
+ private:
+  // Whether the key is there; read_ok() then says whether reading it added no error.
+  bool given(const Param& p) {
+    errors_before_ = r_.error_count();
+    return node_[std::string(p.key)].IsDefined();
+  }
+  bool read_ok() const { return r_.error_count() == errors_before_; }
+  std::string key_path(const Param& p) const { return path_ + "." + std::string(p.key); }
+
+  Reader& r_;
+  const YAML::Node& node_;
+  std::string path_;
+  std::size_t errors_before_ = 0;
+};
+
+// The keys a struct's Visit() declares, in its order: what its section may hold.
+struct ParamKeys {
+  std::vector<std::string> keys;
+  template <typename T>
+  void operator()(const Param& p, T&&) {
+    keys.emplace_back(p.key);
+  }
+};
+
+// One section whose parameters a struct declares (TrackerParams, MarkingParams): its
+// keys, each read and converted, then the struct's own cross-field checks.
+template <class Params>
+void read_params(Reader& r, const YAML::Node& node, const std::string& path, Params& params) {
+  ParamKeys declared;
+  params.Visit(declared);
+  if (!r.map(node, path, declared.keys)) return;
+  YamlParams reader(r, node, path);
+  params.Visit(reader);
+  params.validate([&](std::string_view key, std::string_view message) {
+    r.error(node[std::string(key)], path + "." + std::string(key), std::string(message));
+  });
 }
 
 void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationConfig& b) {
@@ -829,8 +861,8 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   }
   if (const auto c = r.child(root, "", "calibration", true)) read_calibration(r, *c, cfg);
   if (const auto p = r.child(root, "", "panel_types", true)) read_panel_types(r, *p, cfg);
-  if (const auto v = r.child(root, "", "vision", false)) read_vision(r, *v, cfg.vision);
-  if (const auto m = r.child(root, "", "marking", false)) read_marking(r, *m, cfg.marking);
+  if (const auto v = r.child(root, "", "vision", false)) read_params(r, *v, "vision", cfg.vision);
+  if (const auto m = r.child(root, "", "marking", false)) read_params(r, *m, "marking", cfg.marking);
   if (const auto b = r.child(root, "", "base_calibration", false)) read_base_calibration(r, *b, cfg.base_calibration);
 
   // Simulated devices are advanced by the sim_world task: one without the other is a

@@ -69,12 +69,13 @@ void check_real_devices(const CellConfig& c, const ReplayOptions& options) {
 }
 
 PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
-                      const std::string& predictor, const ReplayOptions& options, const vision::Recording& rec) {
+                      control::PredictorKind kind, const ReplayOptions& options, const vision::Recording& rec) {
+  const std::string predictor(control::to_string(kind));
   const bool real = !options.gpio_sim.empty();
   CellConfig cfg = base;
   cfg.cameras.source = CameraSource::kRecording;
   cfg.cameras.recording = recording;
-  cfg.marking.predictor = predictor;
+  cfg.marking.predictor.kind = kind;
   cfg.watchdog.systemd = false;  // no service manager in a rig run
   cfg.watchdog.device = false;
   if (!real) {  // (a real-device run's configuration was checked before the first run)
@@ -330,8 +331,10 @@ ReplayReport replay_recording(const CellConfig& config, const std::string& recor
                      "; rig peer through gpio-sim " + options.gpio_sim +
                      (options.arm_serial_peer.empty() ? "" : " and serial " + options.arm_serial_peer);
   }
-  std::vector<std::string> kinds{config.marking.predictor};
-  if (options.both_predictors) kinds.push_back(config.marking.predictor == "kalman" ? "two-frame" : "kalman");
+  using control::PredictorKind;
+  std::vector<PredictorKind> kinds{config.marking.predictor.kind};
+  if (options.both_predictors)
+    kinds.push_back(config.marking.predictor.kind == PredictorKind::kKalman ? PredictorKind::kTwoFrame : PredictorKind::kKalman);
   for (const auto& k : kinds) {
     report.runs.push_back(run_once(config, recording, job, k, options, rec));
     const PredictorRun& r = report.runs.back();

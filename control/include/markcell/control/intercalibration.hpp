@@ -26,7 +26,7 @@ struct IntercalibrationLimits {
   int min_points = 4;
   int max_outliers = 2;  // more MFs than this disagreeing with the fit: the record is not this panel's
   double point_sigma = 0.0005;   // m: one MF's noise at least (both stations'), whatever the residuals say
-  double max_placement_sigma = 0.003;  // m: a defect placed less surely than this is not sprayed
+  double max_placement_sigma = 0.001;  // m: a defect placed less surely than this is not sprayed
 };
 
 enum class IntercalibrationStatus : std::uint8_t { kOk, kTooFewPoints, kDegenerate, kAboveLimit, kOutliers };

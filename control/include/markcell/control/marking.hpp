@@ -16,11 +16,13 @@
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <numbers>
 #include <string_view>
 
 #include <Eigen/Geometry>
 
 #include "markcell/common/fixed_string.hpp"
+#include "markcell/common/param.hpp"
 #include "markcell/common/triple_buffer.hpp"
 #include "markcell/control/executive.hpp"
 #include "markcell/control/intercalibration.hpp"
@@ -101,17 +103,19 @@ struct PanelResult {
   Nanos planned_at = -1;  // when the plan was made (-1: never, the panel ended first)
 };
 
+// The marking sequence's parameters. The ones in Visit() are the configuration's
+// `marking:` section, declared here once (key, unit, range, what it does); the struct's
+// initialisers are their only defaults. The others come from elsewhere: X_Base_CamR from
+// the base calibration, timing's arm limits from `arm.limits`, timing.pulse from `spray`,
+// require_result_ack from whether there is a results file.
 struct MarkingParams {
   Eigen::Isometry3d X_Base_CamR = Eigen::Isometry3d::Identity();
   double standoff = 0.20;            // m, nozzle to surface (paper: 20 cm pre-contact)
-  double reach = 1.6;                // m, from the base origin
   Nanos command_lead = millis(35);   // set-points are for now + lead (link and arm latency, pursuit lag)
   double settle_position = 0.0015;   // m
-  double settle_angle = 0.01;        // rad
+  double settle_angle = 0.6 * std::numbers::pi / 180.0;  // rad
   Nanos settle_time = millis(40);
   Nanos max_prediction_age = millis(400);  // newest pose older than this: wait, do not spray
-  Nanos pulse = millis(80);
-  Nanos defect_timeout = seconds(6);
   Nanos acquire_timeout = seconds(10);
   Nanos home_timeout = seconds(10);
   // A panel present (cycle enabled) this long with no inspection record: PLC fault, the
@@ -124,12 +128,14 @@ struct MarkingParams {
   // written and synced (acknowledge_result); past this, fault.
   bool require_result_ack = false;
   Nanos result_ack_timeout = seconds(2);
+  // The line's travel in CamR (need not be unit length: the sequence normalises it).
   Eigen::Vector3d line_direction_CamR = Eigen::Vector3d::UnitX();  // downstream defects go first
   IntercalibrationLimits intercalibration;
   PredictorParams predictor;
   int min_defect_points = 6;
   // The plan (reach, limits, settle overhead, pulse, defect timeout) is made once this
   // many poses of the panel have come after its inter-calibration: the motion is known.
+  // Its reach, pulse and defect timeout are the sequence's too.
   ArmTimingModel timing;
   int plan_after_poses = 6;
   // A panel entering the view shows the MFs of its leading edge first; fitted to those,
@@ -139,6 +145,58 @@ struct MarkingParams {
   // most this long, and no longer than the plan says it can wait without losing a
   // defect. 0: start at once (defects not yet placed are followed until they are).
   Nanos placement_hold = seconds(6);
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"standoff_m", Unit::kMetre, 0.01, 1.0, "nozzle to surface when spraying (the paper's pre-contact point)"},
+      standoff);
+    v(Param{"command_lead_ms", Unit::kMillisecond, 0, 1000,
+            "set-points are for now + this: CAN and arm latency, and the arm's pursuit lag"},
+      command_lead);
+    v(Param{"settle_mm", Unit::kMillimetre, 0.05, 50.0, "the arm is on target within this ..."}, settle_position);
+    v(Param{"settle_deg", Unit::kDegree, 0.01, 30.0, "... and this ..."}, settle_angle);
+    v(Param{"settle_ms", Unit::kMillisecond, 0, 10'000, "... for this long before the valve opens"}, settle_time);
+    v(Param{"max_prediction_age_ms", Unit::kMillisecond, 1, 60'000, "newest panel pose older than this: wait, do not spray"},
+      max_prediction_age);
+    v(Param{"defect_timeout_s", Unit::kSecond, 0.1, 600.0, "a defect not sprayed within this is skipped, with the reason"},
+      timing.defect_timeout);
+    v(Param{"acquire_timeout_s", Unit::kSecond, 0.1, 600.0, "the panel's MFs must be found within this of panel present"},
+      acquire_timeout);
+    v(Param{"home_timeout_s", Unit::kSecond, 0.1, 600.0, "the arm must be home within this of being sent there"},
+      home_timeout);
+    v(Param{"predictor", Unit::kNone, 0, 0, "kalman | two-frame (the paper's: last motion applied again)"},
+      Choice<PredictorKind, 2>{predictor.kind, {{{"kalman", PredictorKind::kKalman}, {"two-frame", PredictorKind::kTwoFrame}}}});
+    v(Param{"intercalibration_limit_mm", Unit::kMillimetre, 0.1, 1000.0,
+            "max |error| per axis of the inspection-to-marking fit; above: no marking, PLC fault"},
+      intercalibration.max_abs_error);
+    v(Param{"placement_limit_mm", Unit::kMillimetre, 0.1, 1000.0,
+            "a defect the fit places less surely (1 sigma, from its MFs' layout) is followed, not sprayed"},
+      intercalibration.max_placement_sigma);
+    v(Param{"placement_hold_s", Unit::kSecond, 0.0, 600.0,
+            "the arm waits at home up to this (less if the plan says so) for refits to place every defect"},
+      placement_hold);
+    v(Param{"line_direction", Unit::kNone, -1.0, 1.0, "the line's travel in CamR: downstream defects are marked first"},
+      line_direction_CamR);
+    v(Param{"accel_sigma_m_s2", Unit::kMetrePerSecond2, 1e-6, 10.0, "Kalman: the line's speed fluctuation"},
+      predictor.accel_sigma);
+    v(Param{"lateral_sigma_mm", Unit::kMillimetre, 1e-3, 100.0, "Kalman: one MF's position noise across the view ..."},
+      predictor.lateral_sigma);
+    v(Param{"depth_sigma_mm", Unit::kMillimetre, 1e-3, 100.0, "... and along it (stereo depth)"}, predictor.depth_sigma);
+    v(Param{"plan_settle_ms", Unit::kMillisecond, 0, 60'000,
+            "the plan's time from arriving on a defect to its pulse (lead, pursuit, settle)"},
+      timing.settle);
+    v(Param{"record_timeout_s", Unit::kSecond, 0.1, 600.0,
+            "panel present this long without an inspection record: PLC fault, nothing moves"},
+      record_timeout);
+    v(Param{"record_expiry_s", Unit::kSecond, 1.0, 86400.0,
+            "a record waiting this long with no panel present: its panel's result a fault"},
+      record_expiry);
+  }
+  // What no single key's range says: report(key, message) for each problem.
+  template <class Report>
+  void validate(Report&& report) const {
+    if (line_direction_CamR.norm() < 0.5) report("line_direction", "must be a unit vector (the line's travel in CamR)");
+  }
 };
 
 enum class MarkingState : std::uint8_t { kIdle, kAcquire, kHold, kApproach, kSpraying, kHome, kReporting, kWaitRelease };

@@ -26,7 +26,7 @@ struct ArmTimingModel {
   double max_speed = 1.0;   // m/s, TCP
   double max_accel = 4.0;   // m/s^2
   double reach = 1.6;       // m, from the base origin
-  Nanos settle = millis(300);  // on target before the pulse: command lead, pursuit, settle time
+  Nanos settle = millis(150);  // on target before the pulse: command lead, pursuit, settle time
   Nanos pulse = millis(80);
   Nanos defect_timeout = seconds(6);  // the sequence gives up on a defect after this
   Nanos horizon = seconds(120);       // a defect not in reach within this is never in reach

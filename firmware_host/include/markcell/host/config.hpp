@@ -11,6 +11,8 @@
 
 #include "markcell/common/time.hpp"
 #include "markcell/control/executive.hpp"
+#include "markcell/control/marking.hpp"
+#include "markcell/vision/panel_tracker.hpp"
 
 namespace markcell::host {
 
@@ -149,43 +151,6 @@ struct PanelTypeConfig {
   std::string file;  // the panel type's MFs and templates (markcell select-mfs); absolute
 };
 
-// The vision task's tracker (vision::TrackerParams), as configured.
-struct VisionConfig {
-  double epipolar_px = 1.0;
-  double min_ncc = 0.75;
-  int lk_window_px = 21;
-  int pyramid_levels = 3;
-  int min_macro_features = 4;
-  double inlier_mm = 8.0;
-  double depth_min_m = 2.0, depth_max_m = 4.5;
-  double forward_backward_px = 0.5;
-  int lost_frames_to_reinit = 15;
-};
-
-// The marking sequence (control::MarkingParams), as configured.
-struct MarkingConfig {
-  double standoff_m = 0.20;
-  Nanos plan_settle = millis(150);
-  Nanos record_timeout = seconds(5);  // panel present this long without a record: PLC fault
-  Nanos record_expiry = seconds(300);  // a record waiting this long with no panel: its result a fault
-  Nanos command_lead = millis(35);
-  double settle_mm = 1.5;
-  double settle_deg = 0.6;
-  Nanos settle = millis(40);
-  Nanos max_prediction_age = millis(400);
-  Nanos defect_timeout = seconds(6);
-  Nanos acquire_timeout = seconds(10);
-  Nanos home_timeout = seconds(10);
-  std::string predictor = "kalman";  // kalman | two-frame
-  double intercalibration_limit_mm = 20.0;
-  double placement_limit_mm = 1.0;  // a defect placed less surely (1 sigma) than this is not sprayed
-  Nanos placement_hold = seconds(6);  // the arm waits at home at most this long for every defect to be placed
-  std::array<double, 3> line_direction{1.0, 0.0, 0.0};  // CamR
-  double accel_sigma = 0.005;
-  double lateral_sigma_mm = 0.4;
-  double depth_sigma_mm = 2.0;
-};
-
 struct CalibrationPaths {
   std::string stereo;  // absolute, resolved against the config file's folder
   std::string base;
@@ -221,8 +186,8 @@ struct CellConfig {
   CameraConfig cameras;
   CalibrationPaths calibration;
   std::vector<PanelTypeConfig> panel_types;
-  VisionConfig vision;
-  MarkingConfig marking;
+  vision::TrackerParams vision;    // the `vision:` section (its keys declared in TrackerParams::Visit)
+  control::MarkingParams marking;  // the `marking:` section (MarkingParams::Visit); the cell fills in the rest
   BaseCalibrationConfig base_calibration;
 };
 

@@ -21,6 +21,7 @@
 #include <Eigen/Geometry>
 #include <opencv2/core.hpp>
 
+#include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
 #include "markcell/msg/pose_estimate.hpp"
 #include "markcell/vision/optical_flow.hpp"
@@ -65,6 +66,9 @@ bool snap_macro_feature(const cv::Mat& reference_left, Eigen::Vector2d& p, int s
 void save_panel_type(const std::string& path, const PanelTypeModel& model);
 PanelTypeModel load_panel_type(const std::string& path);
 
+// The tracker's parameters. The ones in Visit() are the configuration's `vision:`
+// section, declared here once (key, unit, range, what it does); the initialisers are
+// their only defaults.
 struct TrackerParams {
   LkParams lk;
   int pyramid_levels = 3;
@@ -79,6 +83,32 @@ struct TrackerParams {
   int lost_frames_to_reinit = 15;   // frames without a pose before the MFs are searched anew
   int ransac_iterations = 64;
   int reference_samples = 256;      // frames averaged into each MF's position in P
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"epipolar_px", Unit::kPixel, 0.05, 20.0, "a left/right pair further than this from its epipolar line is rejected"},
+      epipolar_px);
+    v(Param{"min_ncc", Unit::kNone, 0.0, 1.0, "template match that counts as found (re-initialisation, reacquisition)"},
+      min_ncc);
+    v(Param{"lk_window_px", Unit::kOddWindowPx, 5, 2 * kMaxLkRadius + 1, "pyramidal Lucas-Kanade window (odd)"}, lk.radius);
+    v(Param{"pyramid_levels", Unit::kNone, 3, kMaxPyramidLevels, "levels of the image pyramids"}, pyramid_levels);
+    v(Param{"min_macro_features", Unit::kNone, 3, kMaxMacroFeatures, "fewer MFs consistent with a rigid motion: no pose"},
+      min_macro_features);
+    v(Param{"inlier_mm", Unit::kMillimetre, 0.1, 100.0,
+            "an MF further than this from the rigid motion is an outlier (stereo depth noise ~2 mm)"},
+      inlier_m);
+    v(Param{"depth_min_m", Unit::kMetre, 0.1, 50.0, "where a panel can be, from the right camera ..."}, depth_min);
+    v(Param{"depth_max_m", Unit::kMetre, 0.1, 50.0, "... to here"}, depth_max);
+    v(Param{"forward_backward_px", Unit::kPixel, 0.01, 10.0, "frame-to-frame LK forward-backward consistency"},
+      forward_backward_px);
+    v(Param{"lost_frames_to_reinit", Unit::kNone, 1, 10'000, "frames without a pose before the MFs are searched anew"},
+      lost_frames_to_reinit);
+  }
+  // What no single key's range says: report(key, message) for each problem.
+  template <class Report>
+  void validate(Report&& report) const {
+    if (depth_min >= depth_max) report("depth_max_m", "must be greater than depth_min_m");
+  }
 };
 
 class PanelTracker {

@@ -301,6 +301,110 @@ class Reader {
   std::vector<ConfigError>& errors_;
 };
 
+// Reads the parameters a struct declares in its Visit() from one section of the YAML,
+// through the Reader (so every error keeps its FILE:LINE:COL: key.path: form). A key
+// left out keeps the field's declared default untouched; a key given is converted once
+// from the unit the configuration writes it in to the field's SI.
+class YamlParams {
+ public:
+  YamlParams(Reader& r, const YAML::Node& node, std::string path) : r_(r), node_(node), path_(std::move(path)) {}
+
+  void operator()(const Param& p, double& field) {
+    if (!given(p)) return;
+    double v = 0;
+    r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok()) field = to_si(v, p.unit);
+  }
+  void operator()(const Param& p, int& field) {
+    if (!given(p)) return;
+    long long v = 0;
+    r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
+    if (!read_ok()) return;
+    if (p.unit == Unit::kOddWindowPx) {
+      if (v % 2 == 0) {
+        r_.error(node_[std::string(p.key)], key_path(p), "must be odd (a window centred on the point)");
+        return;
+      }
+      field = static_cast<int>(v / 2);
+    } else {
+      field = static_cast<int>(v);
+    }
+  }
+  void operator()(const Param& p, Nanos& field) {
+    if (!given(p)) return;
+    if (p.unit == Unit::kMillisecond) {
+      long long v = 0;
+      r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
+      if (read_ok()) field = millis(v);
+    } else {
+      double v = 0;
+      r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+      if (read_ok()) field = static_cast<Nanos>(v * 1e9);
+    }
+  }
+  void operator()(const Param& p, bool& field) {
+    if (given(p)) r_.boolean(node_, path_, std::string(p.key), field, false);
+  }
+  void operator()(const Param& p, Eigen::Vector3d& field) {
+    if (!given(p)) return;
+    std::array<double, 3> v{field.x(), field.y(), field.z()};
+    r_.vec3(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok()) field = Eigen::Vector3d(v[0], v[1], v[2]);
+  }
+  void operator()(const Param& p, std::array<double, 3>& field) {
+    if (!given(p)) return;
+    std::array<double, 3> v = field;
+    r_.vec3(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok())
+      for (std::size_t i = 0; i < 3; ++i) field[i] = to_si(v[i], p.unit);
+  }
+  template <typename E, std::size_t N>
+  void operator()(const Param& p, Choice<E, N> c) {
+    if (!given(p)) return;
+    std::vector<std::pair<std::string, E>> options;
+    for (const auto& o : c.options) options.emplace_back(std::string(o.name), o.value);
+    r_.choice(node_, path_, std::string(p.key), c.value, options, false);
+  }
+
+ private:
+  // Whether the key is there; read_ok() then says whether reading it added no error.
+  // A required key left out is reported here (at its section).
+  bool given(const Param& p) {
+    errors_before_ = r_.error_count();
+    return r_.child(node_, path_, std::string(p.key), p.required).has_value();
+  }
+  bool read_ok() const { return r_.error_count() == errors_before_; }
+  std::string key_path(const Param& p) const { return path_ + "." + std::string(p.key); }
+
+  Reader& r_;
+  const YAML::Node& node_;
+  std::string path_;
+  std::size_t errors_before_ = 0;
+};
+
+// The keys a struct's Visit() declares, in its order: what its section may hold.
+struct ParamKeys {
+  std::vector<std::string> keys;
+  template <typename T>
+  void operator()(const Param& p, T&&) {
+    keys.emplace_back(p.key);
+  }
+};
+
+// One section whose parameters a struct declares (TrackerParams, MarkingParams, ...): its
+// keys, each read and converted, then the struct's own cross-field checks.
+template <class Params>
+void read_params(Reader& r, const YAML::Node& node, const std::string& path, Params& params) {
+  ParamKeys declared;
+  params.Visit(declared);
+  if (!r.map(node, path, declared.keys)) return;
+  YamlParams reader(r, node, path);
+  params.Visit(reader);
+  params.validate([&](std::string_view key, std::string_view message) {
+    r.error(node[std::string(key)], path + "." + std::string(key), std::string(message));
+  });
+}
+
 void read_executive(Reader& r, const YAML::Node& node, const std::vector<std::string>& known_tasks, CellConfig& cfg,
                     std::vector<YAML::Mark>& task_marks) {
   const std::string P = "executive";
@@ -461,17 +565,7 @@ void read_gpio(Reader& r, const YAML::Node& node, GpioConfig& g) {
 void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
   const std::string P = "devices.arm";
   if (!r.map(node, P, {"transport", "can", "serial", "limits"})) return;
-  if (const auto l = r.child(node, P, "limits", true);
-      l && r.map(*l, P + ".limits", {"reach_m", "max_tcp_speed_m_s", "max_tcp_accel_m_s2", "home_m"})) {
-    const std::string LP = P + ".limits";
-    r.number(*l, LP, "reach_m", a.limits.reach, 0.1, 5.0);
-    r.number(*l, LP, "max_tcp_speed_m_s", a.limits.max_tcp_speed, 0.01, 10.0);
-    r.number(*l, LP, "max_tcp_accel_m_s2", a.limits.max_tcp_accel, 0.01, 100.0);
-    r.vec3(*l, LP, "home_m", a.limits.home, -5.0, 5.0);
-    const auto& h = a.limits.home;
-    if (std::sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]) > a.limits.reach)
-      r.error((*l)["home_m"], LP + ".home_m", "home is beyond reach_m");
-  }
+  if (const auto l = r.child(node, P, "limits", true)) read_params(r, *l, P + ".limits", a.limits);
   r.choice(node, P, "transport", a.transport,
            {{"simulated", ArmTransport::kSimulated}, {"can", ArmTransport::kCan}, {"serial", ArmTransport::kSerial}});
   if (const auto c = r.child(node, P, "can", a.transport == ArmTransport::kCan);
@@ -604,102 +698,6 @@ void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
   }
 }
 
-// Reads the parameters a struct declares in its Visit() from one section of the YAML,
-// through the Reader (so every error keeps its FILE:LINE:COL: key.path: form). A key
-// left out keeps the field's declared default untouched; a key given is converted once
-// from the unit the configuration writes it in to the field's SI.
-class YamlParams {
- public:
-  YamlParams(Reader& r, const YAML::Node& node, std::string path) : r_(r), node_(node), path_(std::move(path)) {}
-
-  void operator()(const Param& p, double& field) {
-    if (!given(p)) return;
-    double v = 0;
-    r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
-    if (read_ok()) field = to_si(v, p.unit);
-  }
-  void operator()(const Param& p, int& field) {
-    if (!given(p)) return;
-    long long v = 0;
-    r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
-    if (!read_ok()) return;
-    if (p.unit == Unit::kOddWindowPx) {
-      if (v % 2 == 0) {
-        r_.error(node_[std::string(p.key)], key_path(p), "must be odd (a window centred on the point)");
-        return;
-      }
-      field = static_cast<int>(v / 2);
-    } else {
-      field = static_cast<int>(v);
-    }
-  }
-  void operator()(const Param& p, Nanos& field) {
-    if (!given(p)) return;
-    if (p.unit == Unit::kMillisecond) {
-      long long v = 0;
-      r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
-      if (read_ok()) field = millis(v);
-    } else {
-      double v = 0;
-      r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
-      if (read_ok()) field = static_cast<Nanos>(v * 1e9);
-    }
-  }
-  void operator()(const Param& p, bool& field) {
-    if (given(p)) r_.boolean(node_, path_, std::string(p.key), field, false);
-  }
-  void operator()(const Param& p, Eigen::Vector3d& field) {
-    if (!given(p)) return;
-    std::array<double, 3> v{field.x(), field.y(), field.z()};
-    r_.vec3(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
-    if (read_ok()) field = Eigen::Vector3d(v[0], v[1], v[2]);
-  }
-  template <typename E, std::size_t N>
-  void operator()(const Param& p, Choice<E, N> c) {
-    if (!given(p)) return;
-    std::vector<std::pair<std::string, E>> options;
-    for (const auto& o : c.options) options.emplace_back(std::string(o.name), o.value);
-    r_.choice(node_, path_, std::string(p.key), c.value, options, false);
-  }
-
- private:
-  // Whether the key is there; read_ok() then says whether reading it added no error.
-  bool given(const Param& p) {
-    errors_before_ = r_.error_count();
-    return node_[std::string(p.key)].IsDefined();
-  }
-  bool read_ok() const { return r_.error_count() == errors_before_; }
-  std::string key_path(const Param& p) const { return path_ + "." + std::string(p.key); }
-
-  Reader& r_;
-  const YAML::Node& node_;
-  std::string path_;
-  std::size_t errors_before_ = 0;
-};
-
-// The keys a struct's Visit() declares, in its order: what its section may hold.
-struct ParamKeys {
-  std::vector<std::string> keys;
-  template <typename T>
-  void operator()(const Param& p, T&&) {
-    keys.emplace_back(p.key);
-  }
-};
-
-// One section whose parameters a struct declares (TrackerParams, MarkingParams): its
-// keys, each read and converted, then the struct's own cross-field checks.
-template <class Params>
-void read_params(Reader& r, const YAML::Node& node, const std::string& path, Params& params) {
-  ParamKeys declared;
-  params.Visit(declared);
-  if (!r.map(node, path, declared.keys)) return;
-  YamlParams reader(r, node, path);
-  params.Visit(reader);
-  params.validate([&](std::string_view key, std::string_view message) {
-    r.error(node[std::string(key)], path + "." + std::string(key), std::string(message));
-  });
-}
-
 void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationConfig& b) {
   const std::string P = "base_calibration";
   if (!r.map(node, P, {"board", "X_Tool_Board", "poses", "max_rms_mm", "max_abs_mm", "move_timeout_s", "settle_ms"})) return;
@@ -810,11 +808,17 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   }
   r.duplicate_keys(root, "");
   if (!errors.empty()) throw ConfigInvalid(errors);
-  if (!r.map(root, "", {"cell", "executive", "watchdog", "safe_stop", "spray", "devices", "calibration", "panel_types",
-                      "vision", "marking", "base_calibration"}))
-    throw ConfigInvalid(errors);
+  std::vector<std::string> sections;
+  for (const auto& section : kConfigSections) sections.emplace_back(section.key);
+  if (!r.map(root, "", sections)) throw ConfigInvalid(errors);
+  // A top-level section, required as kConfigSections says.
+  const auto section = [&](std::string_view key) {
+    const auto* s = std::find_if(kConfigSections.begin(), kConfigSections.end(),
+                                 [&](const ConfigSection& c) { return c.key == key; });
+    return r.child(root, "", std::string(key), s != kConfigSections.end() && s->required);
+  };
 
-  if (const auto cell = r.child(root, "", "cell", true); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder"})) {
+  if (const auto cell = section("cell"); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder"})) {
     r.text(*cell, "cell", "name", cfg.name);
     // A path resolved against the config file's folder; `folder` must exist.
     const auto path_in = [&](const char* key, std::string& out, const auto& folder_of) {
@@ -834,36 +838,25 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
     path_in("record_folder", cfg.record_folder, [](const std::filesystem::path& p) { return p; });
   }
   std::vector<YAML::Mark> task_marks;
-  if (const auto e = r.child(root, "", "executive", true)) read_executive(r, *e, known_tasks, cfg, task_marks);
-  if (const auto w = r.child(root, "", "watchdog", true)) read_watchdog(r, *w, cfg.watchdog);
-  if (const auto s = r.child(root, "", "safe_stop", true); s && r.map(*s, "safe_stop", {"arm", "plc_fault_line", "rearm"})) {
+  if (const auto e = section("executive")) read_executive(r, *e, known_tasks, cfg, task_marks);
+  if (const auto w = section("watchdog")) read_watchdog(r, *w, cfg.watchdog);
+  if (const auto s = section("safe_stop"); s && r.map(*s, "safe_stop", {"arm", "plc_fault_line", "rearm"})) {
     r.choice(*s, "safe_stop", "arm", cfg.safe_stop.arm, {{"hold", ArmSafeAction::kHold}, {"home", ArmSafeAction::kHome}});
     r.choice(*s, "safe_stop", "rearm", cfg.safe_stop.rearm,
              {{"cycle_enable", RearmConfig::kCycleEnable}, {"never", RearmConfig::kNever}}, false);
     r.boolean(*s, "safe_stop", "plc_fault_line", cfg.safe_stop.plc_fault_line);
   }
-  if (const auto sp = r.child(root, "", "spray", true);
-      sp && r.map(*sp, "spray", {"pulse_ms", "min_pulse_ms", "max_pulse_ms"})) {
-    long long pulse = 80, lo = 5, hi = 500;
-    r.integer(*sp, "spray", "pulse_ms", pulse, 1, 10'000);
-    r.integer(*sp, "spray", "min_pulse_ms", lo, 1, 10'000);
-    r.integer(*sp, "spray", "max_pulse_ms", hi, 1, 10'000);
-    if (pulse < lo || pulse > hi)
-      r.error((*sp)["pulse_ms"], "spray.pulse_ms",
-              "pulse_ms " + std::to_string(pulse) + " is outside [min_pulse_ms, max_pulse_ms] = [" + std::to_string(lo) +
-                  ", " + std::to_string(hi) + "]");
-    cfg.spray = SprayConfig{millis(pulse), millis(lo), millis(hi)};
-  }
-  if (const auto d = r.child(root, "", "devices", true); d && r.map(*d, "devices", {"gpio", "arm", "cameras"})) {
+  if (const auto sp = section("spray")) read_params(r, *sp, "spray", cfg.spray);
+  if (const auto d = section("devices"); d && r.map(*d, "devices", {"gpio", "arm", "cameras"})) {
     if (const auto g = r.child(*d, "devices", "gpio", true)) read_gpio(r, *g, cfg.gpio);
     if (const auto a = r.child(*d, "devices", "arm", true)) read_arm(r, *a, cfg.arm);
     if (const auto c = r.child(*d, "devices", "cameras", true)) read_cameras(r, *c, cfg.cameras);
   }
-  if (const auto c = r.child(root, "", "calibration", true)) read_calibration(r, *c, cfg);
-  if (const auto p = r.child(root, "", "panel_types", true)) read_panel_types(r, *p, cfg);
-  if (const auto v = r.child(root, "", "vision", false)) read_params(r, *v, "vision", cfg.vision);
-  if (const auto m = r.child(root, "", "marking", false)) read_params(r, *m, "marking", cfg.marking);
-  if (const auto b = r.child(root, "", "base_calibration", false)) read_base_calibration(r, *b, cfg.base_calibration);
+  if (const auto c = section("calibration")) read_calibration(r, *c, cfg);
+  if (const auto p = section("panel_types")) read_panel_types(r, *p, cfg);
+  if (const auto v = section("vision")) read_params(r, *v, "vision", cfg.vision);
+  if (const auto m = section("marking")) read_params(r, *m, "marking", cfg.marking);
+  if (const auto b = section("base_calibration")) read_base_calibration(r, *b, cfg.base_calibration);
 
   // Simulated devices are advanced by the sim_world task: one without the other is a
   // configuration that cannot run.

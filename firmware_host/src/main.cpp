@@ -549,6 +549,9 @@ int main(int argc, char** argv) {
   auto* check = app.add_subcommand("check-config", "Validate a cell configuration; print every error and exit 2 if any");
   check->add_option("FILE", check_file, "Cell configuration (YAML)")->required();
 
+  auto* schema = app.add_subcommand("config-schema",
+                                    "Print a JSON Schema of the cell configuration (for editors; from the parameters' declarations)");
+
   std::string run_file;
   std::string clock_name = "real";
   double run_seconds = 0;
@@ -679,6 +682,10 @@ int main(int argc, char** argv) {
 
   try {
     if (*check) return check_config_command(check_file);
+    if (*schema) {
+      std::cout << config_schema_json(task_catalog());
+      return 0;
+    }
     if (*calibrate) return calibrate_stereo_command(cal_images, cal_board, cal_square, cal_out);
     if (*record) {
       const auto config = load_or_report(record_config);

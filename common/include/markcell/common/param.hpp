@@ -34,6 +34,7 @@ enum class Unit : std::uint8_t {
   kDegree,       // stored in radians
   kMillisecond,  // an integer in the configuration, stored as Nanos
   kSecond,       // a number in the configuration, stored as Nanos
+  kMetrePerSecond,
   kMetrePerSecond2,
   kOddWindowPx,  // a window's full width (odd, pixels), stored as its half width
 };
@@ -65,6 +66,7 @@ constexpr std::string_view unit_name(Unit u) {
     case Unit::kDegree: return "deg";
     case Unit::kMillisecond: return "ms";
     case Unit::kSecond: return "s";
+    case Unit::kMetrePerSecond: return "m/s";
     case Unit::kMetrePerSecond2: return "m/s^2";
     case Unit::kOddWindowPx: return "px (odd)";
   }
@@ -76,6 +78,7 @@ struct Param {
   Unit unit = Unit::kNone;
   double lo = 0, hi = 0;  // the accepted range, in `unit` (both ends included)
   std::string_view doc;   // one line: what it does
+  bool required = false;  // the configuration must write it (else: the declared default)
 };
 
 // A choice among named values (an enum parameter): each name as the configuration

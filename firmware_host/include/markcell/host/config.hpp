@@ -3,15 +3,18 @@
 // every key). Loading validates everything before anything starts and reports every
 // problem, each with file, line, column, key path and what was expected.
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <stdexcept>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
 #include "markcell/control/executive.hpp"
 #include "markcell/control/marking.hpp"
+#include "markcell/control/planner.hpp"
 #include "markcell/vision/panel_tracker.hpp"
 
 namespace markcell::host {
@@ -84,11 +87,27 @@ struct SerialConfig {
   Nanos state_timeout = millis(150);  // the arm's STATE (its heartbeat) silent this long: link lost
 };
 
+// `devices.arm.limits`. The planner's model (control::ArmTimingModel) owns the
+// defaults of the TCP limits and the reach: the cell's plan uses these values.
 struct ArmLimitsConfig {
-  double reach = 1.6;            // m, from the base origin
-  double max_tcp_speed = 1.0;    // m/s
-  double max_tcp_accel = 4.0;    // m/s^2
+  double reach = control::ArmTimingModel{}.reach;                  // m, from the base origin
+  double max_tcp_speed = control::ArmTimingModel{}.max_speed;      // m/s
+  double max_tcp_accel = control::ArmTimingModel{}.max_accel;      // m/s^2
   std::array<double, 3> home{0.3, 0.0, 0.6};  // tool position at home, base frame, m
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"reach_m", Unit::kMetre, 0.1, 5.0, "the tool's reach from the base origin", true}, reach);
+    v(Param{"max_tcp_speed_m_s", Unit::kMetrePerSecond, 0.01, 10.0, "the tool's speed limit", true}, max_tcp_speed);
+    v(Param{"max_tcp_accel_m_s2", Unit::kMetrePerSecond2, 0.01, 100.0, "the tool's acceleration limit", true},
+      max_tcp_accel);
+    v(Param{"home_m", Unit::kMetre, -5.0, 5.0, "the tool's position at home, base frame", true}, home);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    if (std::sqrt(home[0] * home[0] + home[1] * home[1] + home[2] * home[2]) > reach)
+      report("home_m", "home is beyond reach_m");
+  }
 };
 
 struct ArmConfig {
@@ -98,10 +117,28 @@ struct ArmConfig {
   ArmLimitsConfig limits;
 };
 
+// `spray`. The pulse's default is the planner's (control::ArmTimingModel::pulse): the
+// plan times each defect with the pulse the valve gives.
 struct SprayConfig {
-  Nanos pulse = millis(80);
+  Nanos pulse = control::ArmTimingModel{}.pulse;
   Nanos min_pulse = millis(5);
   Nanos max_pulse = millis(500);
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"pulse_ms", Unit::kMillisecond, 1, 10'000, "length of one spray (the valve opens and closes on the tick)", true},
+      pulse);
+    v(Param{"min_pulse_ms", Unit::kMillisecond, 1, 10'000, "the valve refuses a pulse shorter than this ...", true}, min_pulse);
+    v(Param{"max_pulse_ms", Unit::kMillisecond, 1, 10'000, "... or longer than this (a bad length, not a spray)", true},
+      max_pulse);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    const auto ms = [](Nanos t) { return std::to_string(t / millis(1)); };
+    if (pulse < min_pulse || pulse > max_pulse)
+      report("pulse_ms", "pulse_ms " + ms(pulse) + " is outside [min_pulse_ms, max_pulse_ms] = [" + ms(min_pulse) + ", " +
+                             ms(max_pulse) + "]");
+  }
 };
 
 enum class CameraSource : std::uint8_t { kSimulated, kAravis, kRecording };
@@ -190,6 +227,33 @@ struct CellConfig {
   control::MarkingParams marking;  // the `marking:` section (MarkingParams::Visit); the cell fills in the rest
   BaseCalibrationConfig base_calibration;
 };
+
+// The configuration's top-level sections, in the example's order.
+struct ConfigSection {
+  std::string_view key;
+  bool required;
+  std::string_view doc;
+};
+inline constexpr std::array<ConfigSection, 11> kConfigSections{{
+    {"cell", true, "the cell's name, its results file and its inspection-record folder"},
+    {"executive", true, "the base tick, the lanes (threads) and the task table"},
+    {"watchdog", true, "systemd's watchdog and the hardware watchdog device"},
+    {"safe_stop", true, "what a safe stop does to the arm and the PLC, and how the cell re-arms"},
+    {"spray", true, "the spray valve's pulse"},
+    {"devices", true, "the GPIO lines, the arm and its link, the cameras"},
+    {"calibration", true, "the stereo and base calibration files"},
+    {"panel_types", true, "each panel type's macro-features file"},
+    {"vision", false, "the panel tracker (all keys optional)"},
+    {"marking", false, "the marking sequence (all keys optional)"},
+    {"base_calibration", false, "markcell calibrate-base: the board and the poses"},
+}};
+
+// A JSON Schema (draft-07) of the configuration, generated from the same declarations
+// the loader reads (the Visit() of each parameter struct): for editors that complete and
+// check cell.yaml. The sections still read by hand are described as objects; the loader
+// (markcell check-config) remains the full check. `known_tasks` names the task table's
+// allowed keys.
+std::string config_schema_json(const std::vector<std::string>& known_tasks);
 
 // Validates and loads; throws ConfigInvalid with every error found. `known_tasks`: the
 // tasks this build of markcell provides (a configured task must be one of them).

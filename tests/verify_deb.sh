@@ -15,7 +15,8 @@ fail=0
 for f in /usr/bin/markcell /usr/lib/systemd/system/markcell.service /etc/markcell/cell.yaml \
          /etc/markcell/calibration/marking_stereo.yaml /etc/markcell/calibration/base.yaml \
          /etc/markcell/panels/door.yaml /usr/share/markcell/markcell_arm.dbc \
-         /usr/share/doc/markcell/RECORDING.md /usr/share/doc/markcell/README.md; do
+         /usr/share/doc/markcell/vision/RECORDING.md /usr/share/doc/markcell/README.md \
+         /usr/share/doc/markcell/docs/configuration.md /usr/share/doc/markcell/docs/safety.md; do
   grep -qx "$f" "$work/files" || { echo "missing from the package: $f"; fail=1; }
 done
 dpkg-deb -e "$deb" "$work/control"

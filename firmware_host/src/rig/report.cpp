@@ -1,4 +1,4 @@
-// The rig's report: report.json (fields in the README and the rig issue), the plots
+// The rig's report: report.json (fields in docs/rig.md), the plots
 // (paper Figs. 5, 6 and 8, and the spray points on a frame) and the printed tables.
 #include <algorithm>
 #include <cmath>

@@ -290,6 +290,47 @@ TEST_CASE_METHOD(Fixture, "simulated devices and the tasks that run them go toge
   CHECK(m[0] == file() + ":13:16: executive.tasks.sim_world: no device is simulated: remove sim_world");
 }
 
+// The loader's task rules come from the cell's task table (Cell::task_entries): a task
+// it declares required, the needs it declares with their reasons, heavy work off the
+// control tasks' lane.
+TEST_CASE_METHOD(Fixture, "the task table's declarations are the loader's rules, each error at its task") {
+  auto m = messages(check(replace(kValid, "    spray_valve: {lane: control, period_us: 1000, budget_us: 100}\n", "")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":10:5: executive.tasks: the spray_valve task must be in the table (it opens and closes the valve on the tick)");
+  m = messages(check(replace(kValid, "    plc_io: {lane: control, period_us: 1000, budget_us: 200, on_overrun: safe_stop}\n",
+                             "    marking: {lane: control, period_us: 2000, budget_us: 200}\n")));
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":10:14: executive.tasks.marking: the marking task needs the vision task in the table");
+  CHECK(m[1] == file() + ":10:14: executive.tasks.marking: the marking task needs the plc_io task in the table "
+                         "(panel present and the valve's interlock come from it)");
+  dir.write("door.yaml", test::read_file(test::source_path("config/panels/door.yaml")));
+  const std::string with_vision =
+      replace(replace(kValid, "  door: {macro_features: 10}", "  door: {macro_features: 10, file: door.yaml}"),
+              "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n",
+              "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n"
+              "    vision: {lane: control, period_us: 33000, budget_us: 30000}\n");
+  m = messages(check(with_vision));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":14:20: executive.tasks.vision.lane: the vision task does per-frame work: it needs a lane "
+                         "without control tasks (plc_io is on this one)");
+  // On a lane of its own it is accepted.
+  CHECK(check(replace(replace(replace(with_vision, "    vision: {lane: control", "    vision: {lane: vision"),
+                              "lane_stall_ms: 50", "lane_stall_ms: 100"),
+                      "    control: {core: -1, priority: 0}\n",
+                      "    control: {core: -1, priority: 0}\n    vision: {core: -1, priority: 0}\n"))
+            .empty());
+}
+
+// docs/executive.md shows the task table as `markcell check-config --tasks` prints it.
+TEST_CASE("docs/executive.md shows the task table the cell declares") {
+  const std::string page = test::read_file(test::source_path("docs/executive.md"));
+  const std::string table = task_table_markdown(task_catalog());
+  CHECK(page.find(table) != std::string::npos);
+  REQUIRE(task_catalog().size() == Cell::task_entries().size());
+  for (std::size_t i = 0; i < task_catalog().size(); ++i)
+    CHECK(task_catalog()[i].name == Cell::task_entries()[i].decl.name);
+}
+
 TEST_CASE_METHOD(Fixture, "a serial arm's STATE timeout: 150 ms unless given, read in milliseconds, checked") {
   const auto serial = [&](const std::string& extra) {
     return replace(replace(kValid, "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n", ""),

@@ -12,17 +12,62 @@
 
 namespace markcell::host {
 
-const std::vector<std::string>& task_catalog() {
-  static const std::vector<std::string> kTasks = {
-      "plc_io",       // PLC handshake lines, e-stop -> safe stop (control lane)
-      "spray_valve",  // opens and closes the valve on the tick (control lane)
-      "arm_link",     // polls the arm link, link faults -> safe stop, holds the arm on a stop
-      "sim_world",    // advances the simulated devices (only with simulated devices)
-      "vision",       // frames -> macro-features -> panel pose (vision lane)
-      "marking",      // inter-calibration, prediction, the marking sequence (control lane)
-      "camera_trigger",  // a rising edge on the camera trigger line every other run (cameras.trigger: hardware)
-  };
-  return kTasks;
+// The cell's task table. Each entry is the one declaration of a task: its name, its kind
+// (a control step or heavy per-frame work), whether a table must have it, what it needs
+// beside it, and its binding. docs/executive.md's table is `markcell check-config
+// --tasks`, checked by a test.
+constexpr std::size_t kCellTaskCount = 7;
+
+std::span<const Cell::TaskEntry> Cell::task_entries() {
+  // The objects a binding needs are built from the configuration before binding; one
+  // missing means the loader let through a table it should have refused.
+  static const std::array<TaskEntry, kCellTaskCount> kCellTasks{{
+      {{"plc_io", TaskKind::kControl, TaskPresence::kOptional, "drives the PLC handshake lines and takes the e-stop to the safe stop"},
+       [](Cell& c, const std::string& n) { c.executive_->bind(n, &control::PlcIo::task, c.plc_io_.get()); }},
+      {{"spray_valve", TaskKind::kControl, TaskPresence::kRequired, "opens and closes the valve on the tick"},
+       [](Cell& c, const std::string& n) { c.executive_->bind(n, &control::SprayValve::task, c.spray_valve_.get()); }},
+      {{"arm_link", TaskKind::kControl, TaskPresence::kRequired,
+        "supervises the arm link: its faults to the safe stop, the arm held on a stop"},
+       [](Cell& c, const std::string& n) {
+         c.executive_->bind(n, &control::ArmSupervision::task, c.arm_supervision_.get());
+       }},
+      {{"sim_world", TaskKind::kControl, TaskPresence::kWithSimulatedDevices, "advances the simulated devices"},
+       [](Cell& c, const std::string& n) {
+         if (!c.sim_world_) throw std::logic_error("task '" + n + "' passed validation but the simulated world was not built");
+         c.executive_->bind(n, &SimWorld::task, c.sim_world_.get());
+       }},
+      {{"vision", TaskKind::kHeavy, TaskPresence::kOptional, "turns each newest frame pair into macro-features and the panel's pose"},
+       [](Cell& c, const std::string& n) {
+         if (!c.vision_) throw std::logic_error("task '" + n + "' passed validation but the vision task was not built");
+         c.executive_->bind(n, &VisionTask::task, c.vision_.get());
+       }},
+      {{"marking", TaskKind::kControl, TaskPresence::kOptional,
+        "fits the inter-calibration, predicts, plans and runs the marking sequence",
+        {{{"vision", ""}, {"plc_io", "panel present and the valve's interlock come from it"}}}},
+       [](Cell& c, const std::string& n) {
+         if (!c.marking_) throw std::logic_error("task '" + n + "' passed validation but the marking sequence was not built");
+         c.executive_->bind(n, &control::MarkingSequence::task, c.marking_.get());
+       }},
+      {{"camera_trigger", TaskKind::kControl, TaskPresence::kOptional,
+        "gives the camera trigger line a rising edge every other run (cameras on the trigger line)"},
+       [](Cell& c, const std::string& n) {
+         c.camera_trigger_ = std::make_unique<CameraTriggerTask>();
+         c.camera_trigger_->gpio = c.gpio_.get();
+         c.camera_trigger_->line = c.gpio_line(LineRole::kCameraTrigger);
+         c.executive_->bind(n, &CameraTriggerTask::task, c.camera_trigger_.get());
+       }},
+  }};
+  return kCellTasks;
+}
+
+TaskTable task_catalog() {
+  static const auto kDecls = [] {
+    const auto entries = Cell::task_entries();
+    std::array<TaskDecl, kCellTaskCount> decls{};
+    for (std::size_t i = 0; i < decls.size(); ++i) decls[i] = entries[i].decl;
+    return decls;
+  }();
+  return kDecls;
 }
 
 drivers::CanArmLinkConfig can_link_config(const CanConfig& c) {
@@ -289,19 +334,10 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
 
   executive_ = std::make_unique<control::Executive>(config.executive, *clock_, safe_stop_);
   for (const auto& task : config.executive.tasks) {
-    if (task.name == "plc_io") executive_->bind(task.name, &control::PlcIo::task, plc_io_.get());
-    else if (task.name == "spray_valve") executive_->bind(task.name, &control::SprayValve::task, spray_valve_.get());
-    else if (task.name == "arm_link") executive_->bind(task.name, &control::ArmSupervision::task, arm_supervision_.get());
-    else if (task.name == "sim_world" && sim_world_) executive_->bind(task.name, &SimWorld::task, sim_world_.get());
-    else if (task.name == "vision" && vision_) executive_->bind(task.name, &VisionTask::task, vision_.get());
-    else if (task.name == "marking" && marking_) executive_->bind(task.name, &control::MarkingSequence::task, marking_.get());
-    else if (task.name == "camera_trigger") {
-      camera_trigger_ = std::make_unique<CameraTriggerTask>();
-      camera_trigger_->gpio = gpio_.get();
-      camera_trigger_->line = gpio_line(LineRole::kCameraTrigger);
-      executive_->bind(task.name, &CameraTriggerTask::task, camera_trigger_.get());
-    }
-    else throw std::logic_error("task '" + task.name + "' passed validation but has no binding");
+    const auto entries = task_entries();
+    const auto entry = std::find_if(entries.begin(), entries.end(), [&](const TaskEntry& e) { return e.decl.name == task.name; });
+    if (entry == entries.end()) throw std::logic_error("task '" + task.name + "' passed validation but has no binding");
+    entry->bind(*this, task.name);
   }
   if (config.watchdog.systemd) executive_->add_watchdog(notifier_);
   if (config.watchdog.device) {

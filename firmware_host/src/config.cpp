@@ -54,6 +54,7 @@ std::string_view to_string(CameraSource s) {
   return s == CameraSource::kAravis ? "aravis" : s == CameraSource::kRecording ? "recording" : "simulated";
 }
 std::string_view to_string(CameraTrigger t) { return t == CameraTrigger::kHardware ? "hardware" : "software"; }
+std::string_view to_string(TaskKind k) { return k == TaskKind::kHeavy ? "heavy" : "control"; }
 std::string_view to_string(ArmSafeAction a) { return a == ArmSafeAction::kHome ? "home" : "hold"; }
 
 namespace {
@@ -74,6 +75,12 @@ std::string join(const std::vector<std::string>& items) {
   std::string s;
   for (const auto& i : items) s += (s.empty() ? "" : ", ") + i;
   return s;
+}
+
+const TaskDecl* find_task(TaskTable table, std::string_view name) {
+  for (const auto& d : table)
+    if (d.name == name) return &d;
+  return nullptr;
 }
 
 // Walks the document, collecting every error with its position. Each `map()` call
@@ -405,7 +412,7 @@ void read_params(Reader& r, const YAML::Node& node, const std::string& path, Par
   });
 }
 
-void read_executive(Reader& r, const YAML::Node& node, const std::vector<std::string>& known_tasks, CellConfig& cfg,
+void read_executive(Reader& r, const YAML::Node& node, TaskTable known_tasks, CellConfig& cfg,
                     std::vector<YAML::Mark>& task_marks) {
   const std::string P = "executive";
   if (!r.map(node, P, {"base_tick_us", "lane_stall_ms", "supervisor_period_ms", "degrade_recovery_runs",
@@ -453,8 +460,11 @@ void read_executive(Reader& r, const YAML::Node& node, const std::vector<std::st
     for (const auto& kv : *tasks) {
       const std::string name = kv.first.Scalar();
       const std::string TP = P + ".tasks." + name;
-      if (std::find(known_tasks.begin(), known_tasks.end(), name) == known_tasks.end())
-        r.error_at(kv.first.Mark(), TP, "unknown task '" + name + "' (markcell provides: " + join(known_tasks) + ")");
+      if (!find_task(known_tasks, name)) {
+        std::vector<std::string> names;
+        for (const auto& d : known_tasks) names.emplace_back(d.name);
+        r.error_at(kv.first.Mark(), TP, "unknown task '" + name + "' (markcell provides: " + join(names) + ")");
+      }
       const YAML::Node& t = kv.second;
       if (!r.map(t, TP, {"lane", "period_us", "phase_us", "budget_us", "on_overrun"})) continue;
       control::TaskSpec task;
@@ -750,7 +760,7 @@ void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationCon
 
 }  // namespace
 
-std::vector<ConfigError> check_config(const std::string& path, const std::vector<std::string>& known_tasks) {
+std::vector<ConfigError> check_config(const std::string& path, TaskTable known_tasks) {
   std::vector<ConfigError> errors;
   try {
     load_config(path, known_tasks);
@@ -760,7 +770,7 @@ std::vector<ConfigError> check_config(const std::string& path, const std::vector
   return errors;
 }
 
-CellConfig load_config(const std::string& path, const std::vector<std::string>& known_tasks) {
+CellConfig load_config(const std::string& path, TaskTable known_tasks) {
   std::string text;
   try {
     text = read_bounded_file(path, kMaxConfigBytes, "a cell configuration");
@@ -774,7 +784,7 @@ CellConfig load_config(const std::string& path, const std::vector<std::string>& 
 }
 
 std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
-                                           const std::vector<std::string>& known_tasks) {
+                                           TaskTable known_tasks) {
   std::vector<ConfigError> errors;
   try {
     load_config_text(text, path, known_tasks);
@@ -784,7 +794,7 @@ std::vector<ConfigError> check_config_text(const std::string& text, const std::s
   return errors;
 }
 
-CellConfig load_config_text(const std::string& text, const std::string& path, const std::vector<std::string>& known_tasks) {
+CellConfig load_config_text(const std::string& text, const std::string& path, TaskTable known_tasks) {
   std::vector<ConfigError> errors;
   Reader r(path, errors);
   CellConfig cfg;
@@ -866,22 +876,39 @@ CellConfig load_config_text(const std::string& text, const std::string& path, co
   const YAML::Node& const_root = root;
   const YAML::Node executive = const_root["executive"];
   if (const YAML::Node tasks = is_map(executive) ? executive["tasks"] : YAML::Node(); is_map(tasks)) {
-    const bool has_world = tasks["sim_world"].IsDefined();
+    // The table's declarations: which tasks must be there, which go with simulated
+    // devices, which need others, and that heavy work has a lane of its own.
     const bool simulated = cfg.arm.transport == ArmTransport::kSimulated;
-    if (simulated && !has_world)
-      r.error(tasks, "executive.tasks", "devices.arm.transport is simulated: the sim_world task must be in the table");
-    if (!simulated && has_world)
-      r.error(tasks["sim_world"], "executive.tasks.sim_world", "no device is simulated: remove sim_world");
-    if (!tasks["spray_valve"].IsDefined())
-      r.error(tasks, "executive.tasks", "the spray_valve task must be in the table (it times the valve)");
-    if (!tasks["arm_link"].IsDefined())
-      r.error(tasks, "executive.tasks", "the arm_link task must be in the table (it supervises the arm)");
-    const bool has_vision = tasks["vision"].IsDefined(), has_marking = tasks["marking"].IsDefined();
-    if (has_marking && !has_vision)
-      r.error(tasks["marking"], "executive.tasks.marking", "the marking task needs the vision task in the table");
-    if (has_marking && !tasks["plc_io"].IsDefined())
-      r.error(tasks["marking"], "executive.tasks.marking",
-              "the marking task needs the plc_io task in the table (panel present and the valve's interlock come from it)");
+    for (const auto& d : known_tasks) {
+      const std::string name(d.name);
+      const bool present = tasks[name].IsDefined();
+      if (d.presence == TaskPresence::kRequired && !present)
+        r.error(tasks, "executive.tasks", "the " + name + " task must be in the table (it " + std::string(d.doc) + ")");
+      if (d.presence == TaskPresence::kWithSimulatedDevices && simulated && !present)
+        r.error(tasks, "executive.tasks", "devices.arm.transport is simulated: the " + name + " task must be in the table");
+      if (d.presence == TaskPresence::kWithSimulatedDevices && !simulated && present)
+        r.error(tasks[name], "executive.tasks." + name, "no device is simulated: remove " + name);
+      if (!present) continue;
+      for (const auto& need : d.needs)
+        if (!need.task.empty() && !tasks[std::string(need.task)].IsDefined())
+          r.error(tasks[name], "executive.tasks." + name,
+                  "the " + name + " task needs the " + std::string(need.task) + " task in the table" +
+                      (need.why.empty() ? std::string() : " (" + std::string(need.why) + ")"));
+    }
+    for (const auto& heavy : cfg.executive.tasks) {
+      const TaskDecl* hd = find_task(known_tasks, heavy.name);
+      if (!hd || hd->kind != TaskKind::kHeavy) continue;
+      for (const auto& other : cfg.executive.tasks) {
+        const TaskDecl* od = find_task(known_tasks, other.name);
+        if (od && od->kind == TaskKind::kControl && other.lane == heavy.lane) {
+          r.error(tasks[heavy.name]["lane"], "executive.tasks." + heavy.name + ".lane",
+                  "the " + heavy.name + " task does per-frame work: it needs a lane without control tasks (" + other.name +
+                      " is on this one)");
+          break;
+        }
+      }
+    }
+    const bool has_vision = tasks["vision"].IsDefined();
     if (has_vision && cfg.calibration.stereo.empty())
       r.error(tasks["vision"], "executive.tasks.vision", "the vision task needs calibration.stereo");
     if (const YAML::Node trig = tasks["camera_trigger"]; trig.IsDefined()) {

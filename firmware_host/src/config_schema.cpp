@@ -95,9 +95,9 @@ std::string open_section(std::string_view doc) {
 
 }  // namespace
 
-std::string config_schema_json(const std::vector<std::string>& known_tasks) {
+std::string config_schema_json(TaskTable known_tasks) {
   std::string tasks;
-  for (const auto& t : known_tasks) tasks += (tasks.empty() ? "" : ", ") + json_quote(t);
+  for (const auto& t : known_tasks) tasks += (tasks.empty() ? "" : ", ") + json_quote(t.name);
   std::ostringstream os;
   os << "{\n  \"$schema\": \"http://json-schema.org/draft-07/schema#\",\n"
      << "  \"title\": \"markcell cell configuration\",\n"
@@ -138,6 +138,21 @@ std::string config_schema_json(const std::vector<std::string>& known_tasks) {
   }
   os << "  }\n}\n";
   return os.str();
+}
+
+std::string task_table_markdown(TaskTable tasks) {
+  std::string out = "| task | kind | in the table | needs | what it does |\n| --- | --- | --- | --- | --- |\n";
+  for (const auto& t : tasks) {
+    std::string needs;
+    for (const auto& n : t.needs)
+      if (!n.task.empty()) needs += (needs.empty() ? "`" : ", `") + std::string(n.task) + "`";
+    const char* presence = t.presence == TaskPresence::kRequired               ? "always"
+                           : t.presence == TaskPresence::kWithSimulatedDevices ? "exactly with simulated devices"
+                                                                               : "optional";
+    out += "| `" + std::string(t.name) + "` | " + std::string(to_string(t.kind)) + " | " + presence + " | " +
+           (needs.empty() ? "" : needs) + " | " + std::string(t.doc) + " |\n";
+  }
+  return out;
 }
 
 }  // namespace markcell::host

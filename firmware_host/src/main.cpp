@@ -547,7 +547,9 @@ int main(int argc, char** argv) {
 
   std::string check_file;
   auto* check = app.add_subcommand("check-config", "Validate a cell configuration; print every error and exit 2 if any");
-  check->add_option("FILE", check_file, "Cell configuration (YAML)")->required();
+  bool list_tasks = false;
+  check->add_option("FILE", check_file, "Cell configuration (YAML)");
+  check->add_flag("--tasks", list_tasks, "Print the tasks this build provides (a Markdown table) instead");
 
   auto* schema = app.add_subcommand("config-schema",
                                     "Print a JSON Schema of the cell configuration (for editors; from the parameters' declarations)");
@@ -681,7 +683,17 @@ int main(int argc, char** argv) {
   if (!*run && !*sim && !*replay) pthread_sigmask(SIG_UNBLOCK, &signals, nullptr);
 
   try {
-    if (*check) return check_config_command(check_file);
+    if (*check) {
+      if (list_tasks) {
+        std::cout << task_table_markdown(task_catalog());
+        return 0;
+      }
+      if (check_file.empty()) {
+        std::cerr << "check-config: FILE is required (or --tasks)\n";
+        return kExitConfig;
+      }
+      return check_config_command(check_file);
+    }
     if (*schema) {
       std::cout << config_schema_json(task_catalog());
       return 0;

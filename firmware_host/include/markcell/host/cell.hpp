@@ -32,8 +32,9 @@ namespace rig {
 class ArmOverlay;
 }
 
-// Every task this build provides, in the order they are documented.
-const std::vector<std::string>& task_catalog();
+// Every task this build provides, as the loader sees it: the declarations of the cell's
+// task table (Cell::task_entries), in its order.
+TaskTable task_catalog();
 
 enum class ClockKind { kReal, kSimulated };
 
@@ -92,6 +93,15 @@ struct VisionStats {
 
 class Cell {
  public:
+  // The task table (PX4's wq_configurations): every task this build provides, declared
+  // once, with what the loader checks (TaskDecl) and how the cell binds it to the
+  // executive. A task the configuration names is bound in the configuration's order.
+  struct TaskEntry {
+    TaskDecl decl;
+    void (*bind)(Cell& cell, const std::string& name);
+  };
+  static std::span<const TaskEntry> task_entries();
+
   Cell(const CellConfig& config, ClockKind clock);
   ~Cell();
 

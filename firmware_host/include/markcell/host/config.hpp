@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -228,6 +229,35 @@ struct CellConfig {
   BaseCalibrationConfig base_calibration;
 };
 
+// What the loader knows of a task. The cell's task table (cell.cpp, kCellTasks) declares
+// each task once, with this and its bind function; the loader's rules, check-config's
+// list (`markcell check-config --tasks`), the schema and docs/executive.md's table come
+// from it.
+enum class TaskKind : std::uint8_t {
+  kControl,  // a short bounded step on a fast lane (1 kHz): devices, PLC, the marking sequence
+  kHeavy,    // per-frame work (the vision task): on a lane with no control task
+};
+enum class TaskPresence : std::uint8_t {
+  kOptional,
+  kRequired,                // in every table
+  kWithSimulatedDevices,    // in the table exactly when a device is simulated
+};
+struct TaskDecl {
+  std::string_view name;
+  TaskKind kind = TaskKind::kControl;
+  TaskPresence presence = TaskPresence::kOptional;
+  std::string_view doc;  // what it does, as a verb phrase ("opens and closes the valve"): a required task's reason
+  // Tasks that must be in the table with this one, each with the reason.
+  struct Need {
+    std::string_view task, why;
+  };
+  std::array<Need, 2> needs{};
+};
+using TaskTable = std::span<const TaskDecl>;
+std::string_view to_string(TaskKind k);
+// The table as docs/executive.md shows it: one Markdown row per task.
+std::string task_table_markdown(TaskTable tasks);
+
 // The configuration's top-level sections, in the example's order.
 struct ConfigSection {
   std::string_view key;
@@ -253,17 +283,18 @@ inline constexpr std::array<ConfigSection, 11> kConfigSections{{
 // check cell.yaml. The sections still read by hand are described as objects; the loader
 // (markcell check-config) remains the full check. `known_tasks` names the task table's
 // allowed keys.
-std::string config_schema_json(const std::vector<std::string>& known_tasks);
+std::string config_schema_json(TaskTable known_tasks);
 
 // Validates and loads; throws ConfigInvalid with every error found. `known_tasks`: the
-// tasks this build of markcell provides (a configured task must be one of them).
-CellConfig load_config(const std::string& path, const std::vector<std::string>& known_tasks);
+// tasks this build of markcell provides (a configured task must be one of them, and their
+// declarations' rules hold).
+CellConfig load_config(const std::string& path, TaskTable known_tasks);
 // The same from text already in memory; `path` names it in messages and is where
 // relative calibration paths are resolved from.
-CellConfig load_config_text(const std::string& text, const std::string& path, const std::vector<std::string>& known_tasks);
+CellConfig load_config_text(const std::string& text, const std::string& path, TaskTable known_tasks);
 std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
-                                           const std::vector<std::string>& known_tasks);
+                                           TaskTable known_tasks);
 // Same checks, returning the errors instead of throwing (empty: valid).
-std::vector<ConfigError> check_config(const std::string& path, const std::vector<std::string>& known_tasks);
+std::vector<ConfigError> check_config(const std::string& path, TaskTable known_tasks);
 
 }  // namespace markcell::host

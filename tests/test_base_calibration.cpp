@@ -12,10 +12,10 @@
 
 #include "markcell/control/base_calibration.hpp"
 #include "markcell/control/tool_pose.hpp"
-#include "markcell/host/base_calibration_run.hpp"
-#include "markcell/host/capacity.hpp"
+#include "markcell/tools/base_calibration_run.hpp"
+#include "markcell/tools/capacity.hpp"
 #include "markcell/host/cell.hpp"
-#include "markcell/host/rig/scenario.hpp"
+#include "markcell/rig/scenario.hpp"
 #include "markcell/vision/calibration_io.hpp"
 #include "test_files.hpp"
 
@@ -114,7 +114,7 @@ TEST_CASE("calibrate-base on the rig's calibration-board scenario: the truth rec
   const auto stereo = vision::load_stereo_calibration(config.calibration.stereo);
   const vision::StereoRig rig(stereo);
   const Eigen::Isometry3d nominal = vision::load_pose(config.calibration.base, "X_Base_CamR");
-  const auto scenario = host::rig::make_scenario("calibration-board", 3);
+  const auto scenario = rig::make_scenario("calibration-board", 3);
   const Eigen::Isometry3d truth = nominal * scenario.X_CamRnominal_CamR;
   // The scenario moves the camera far enough that keeping the nominal would be wrong.
   REQUIRE(host::translation_error(nominal, truth) > 0.005);

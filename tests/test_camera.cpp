@@ -20,7 +20,7 @@
 #include "markcell/host/camera_frame_source.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
-#include "markcell/host/record.hpp"
+#include "markcell/tools/record.hpp"
 #include "markcell/vision/recording.hpp"
 #include "alloc_guard.hpp"
 #include "test_files.hpp"

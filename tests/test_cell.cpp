@@ -67,9 +67,9 @@ TEST_CASE("the valve's pulse record and the nozzle's are rings: pulse 300 is cou
   CHECK(s.cell.spray_valve().pulse(44).requested_start == millis(100) + 44 * millis(20));
   CHECK(s.cell.spray_valve().pulse(0).requested_start == millis(100) + 256 * millis(20));
   // The simulated world saw every opening at the nozzle, at its tick, and keeps the newest.
-  const NozzleWitness& nozzle = *s.cell.sim_nozzle();
+  const sim::NozzleWitness& nozzle = *s.cell.sim_nozzle();
   CHECK(nozzle.total() == kPulses);
-  REQUIRE(nozzle.kept() == NozzleWitness::kCapacity);
+  REQUIRE(nozzle.kept() == sim::NozzleWitness::kCapacity);
   for (std::size_t i = nozzle.total() - nozzle.kept(); i < nozzle.total(); ++i)
     CHECK(nozzle.spray(i).time == millis(100) + static_cast<Nanos>(i) * millis(20));
 }
@@ -239,7 +239,7 @@ TEST_CASE("the camera_trigger task: a rising edge on the trigger line every othe
 }
 
 TEST_CASE("the command log: a CAN frame, a serial frame off the wire, the valve's edges, and what a full log could not keep") {
-  CommandLog log;
+  sim::CommandLog log;
   log.reserve(4);
   drivers::CanFrame can;
   can.id = 0x202;

@@ -11,12 +11,13 @@
 #include "alloc_guard.hpp"
 #include "markcell/common/geometry.hpp"
 #include "markcell/vision/calibration_io.hpp"
-#include "markcell/vision/render.hpp"
+#include "markcell/rig/render.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
 using namespace markcell::geometry;
 using namespace markcell::vision;
+using namespace markcell::rig;  // the renderer the tests draw their frames with
 
 namespace {
 

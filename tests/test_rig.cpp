@@ -2,11 +2,11 @@
 #include <catch2/catch.hpp>
 #include <cmath>
 
-#include "markcell/host/rig/line_motion.hpp"
-#include "markcell/host/rig/scoring.hpp"
+#include "markcell/rig/line_motion.hpp"
+#include "markcell/rig/scoring.hpp"
 
 using namespace markcell;
-using namespace markcell::host::rig;
+using namespace markcell::rig;
 
 namespace {
 
@@ -109,7 +109,7 @@ Spray nozzle_over(const Eigen::Isometry3d& X_CamR_Panel, double x, double y, dou
 }  // namespace
 
 TEST_CASE("scoring: hit, miss, false spray, spray through a hole, skipped defect") {
-  markcell::vision::PanelShape door = markcell::vision::door_shape();
+  markcell::rig::PanelShape door = markcell::rig::door_shape();
   door.bend = 0;
   const Eigen::Isometry3d X = facing(-0.2, 0.0, 3.1);
   const auto still = [&](Nanos) { return X; };
@@ -138,7 +138,7 @@ TEST_CASE("scoring: hit, miss, false spray, spray through a hole, skipped defect
 }
 
 TEST_CASE("scoring: the panel where it is at the moment of spraying, tilted nozzles, bent panels") {
-  const markcell::vision::PanelShape door = markcell::vision::door_shape();  // bent: z = -0.12 x^2
+  const markcell::rig::PanelShape door = markcell::rig::door_shape();  // bent: z = -0.12 x^2
   SpeedProfile speed;
   speed.min_speed = speed.max_speed = 0.012;  // 12 mm per second
   LinePath path;
@@ -175,20 +175,20 @@ TEST_CASE("scoring: the panel where it is at the moment of spraying, tilted nozz
 }
 
 #include "markcell/common/geometry.hpp"
-#include "markcell/host/rig/inspection.hpp"
+#include "markcell/rig/inspection.hpp"
 #include "test_files.hpp"
 
 TEST_CASE("the inspection station's record: macro-features as its scanner triangulates them, defects as point clusters") {
   const auto scanner = markcell::vision::load_stereo_calibration(markcell::test::source_path("config/calibration/inspection_stereo.yaml"));
-  const markcell::vision::PanelShape door = markcell::vision::door_shape();
+  const markcell::rig::PanelShape door = markcell::rig::door_shape();
   // The panel 2 m in front of the scanner, between its cameras, a little turned.
   Eigen::Isometry3d X_SL_Panel = facing(0.15, 0.02, 2.0);
   X_SL_Panel.linear() = X_SL_Panel.linear() * Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitY()).toRotationMatrix();
   const std::vector<DefectSpec> defects = {{1, 0.1, -0.1}, {2, -0.25, -0.2}, {3, 0.35, 0.25}};
   for (std::size_t i = 0; i < door.macro_features.size(); ++i) {  // the scanner sees every macro-feature
     const Eigen::Vector3d p = X_SL_Panel * door.macro_features[i];
-    const Eigen::Vector2d xl = markcell::vision::project_point(scanner.left, p);
-    const Eigen::Vector2d xr = markcell::vision::project_point(scanner.right, scanner.X_CamR_CamL * p);
+    const Eigen::Vector2d xl = markcell::rig::project_point(scanner.left, p);
+    const Eigen::Vector2d xr = markcell::rig::project_point(scanner.right, scanner.X_CamR_CamL * p);
     CHECK((xl.x() > 0 && xl.x() < 1392 && xl.y() > 0 && xl.y() < 1040));
     CHECK((xr.x() > 0 && xr.x() < 1392 && xr.y() > 0 && xr.y() < 1040));
   }
@@ -230,7 +230,7 @@ TEST_CASE("the inspection station's record: macro-features as its scanner triang
   }
 }
 
-#include "markcell/host/rig/scenario.hpp"
+#include "markcell/rig/scenario.hpp"
 #include "markcell/vision/recording.hpp"
 
 TEST_CASE("scenarios: every name is known, unknown names are listed, drops are deterministic") {
@@ -243,7 +243,7 @@ TEST_CASE("scenarios: every name is known, unknown names are listed, drops are d
       continue;
     }
     CHECK_FALSE(s.defects.empty());
-    for (const auto& d : s.defects) CHECK(markcell::vision::panel_shape(s.panel_type).solid(d.x, d.y));
+    for (const auto& d : s.defects) CHECK(markcell::rig::panel_shape(s.panel_type).solid(d.x, d.y));
   }
   CHECK(make_scenario("nine-defects", 1).defects.size() == 9);
   CHECK(make_scenario("paper-fender", 1).defects.size() == 4);
@@ -269,8 +269,8 @@ TEST_CASE("a scenario generates the same recording twice, with its truth and the
   o.max_duration = seconds(1);
   o.fps = 5;
   const std::string a = (dir.path() / "a").string(), b = (dir.path() / "b").string();
-  REQUIRE(generate_recording(s, a, marking, scanner, v::RenderSettings{}, o) == 6);
-  REQUIRE(generate_recording(s, b, marking, scanner, v::RenderSettings{}, o) == 6);
+  REQUIRE(generate_recording(s, a, marking, scanner, rig::RenderSettings{}, o) == 6);
+  REQUIRE(generate_recording(s, b, marking, scanner, rig::RenderSettings{}, o) == 6);
   const v::Recording ra = v::Recording::open(a), rb = v::Recording::open(b);
   REQUIRE(ra.size() == 6);
   CHECK(ra.manifest().scenario == "paper-door");
@@ -287,12 +287,12 @@ TEST_CASE("a scenario generates the same recording twice, with its truth and the
   CHECK(markcell::test::read_file(a + "/truth.csv") == markcell::test::read_file(b + "/truth.csv"));
   CHECK(markcell::test::read_file(a + "/inspection.yaml") == markcell::test::read_file(b + "/inspection.yaml"));
   REQUIRE(ra.defects().size() == 3);
-  CHECK(ra.defects()[0].p_Panel.isApprox(v::door_shape().surface_point(0.12, -0.12), 1e-12));
+  CHECK(ra.defects()[0].p_Panel.isApprox(rig::door_shape().surface_point(0.12, -0.12), 1e-12));
   CHECK(v::load_stereo_calibration(ra.calibration_path()).baseline() == Approx(0.445));
   // The first frame: the door's macro-features in view, where the truth puts them.
-  const v::StereoRenderer r(marking, v::RenderSettings{});
+  const rig::StereoRenderer r(marking, rig::RenderSettings{});
   int visible = 0;
-  for (const auto& mf : v::door_shape().macro_features) {
+  for (const auto& mf : rig::door_shape().macro_features) {
     const Eigen::Vector2d px = r.project(1, ra.truth()[0].X_CamR_Panel * mf);
     visible += px.x() >= 0 && px.x() < 640 && px.y() >= 0 && px.y() < 480;
   }
@@ -300,17 +300,17 @@ TEST_CASE("a scenario generates the same recording twice, with its truth and the
 }
 
 #include "alloc_guard.hpp"
-#include "markcell/host/rig/arm_view.hpp"
+#include "markcell/rig/arm_view.hpp"
 #include "markcell/vision/calibration_io.hpp"
 
 TEST_CASE("the simulated arm's links: equal links meet at an elbow above the reach, the tool along the nozzle's +Z") {
-  using markcell::host::rig::ArmShape;
+  using markcell::rig::ArmShape;
   const ArmShape shape;
   const Eigen::Isometry3d identity = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d X_Base_Nozzle = Eigen::Isometry3d::Identity();
   X_Base_Nozzle.linear() = Eigen::AngleAxisd(-M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();  // +Z towards -X
   X_Base_Nozzle.translation() = Eigen::Vector3d(0.9, 0.3, 0.8);
-  const auto c = markcell::host::rig::arm_occluders(shape, identity, X_Base_Nozzle);
+  const auto c = markcell::rig::arm_occluders(shape, identity, X_Base_Nozzle);
   const Eigen::Vector3d wrist = X_Base_Nozzle.translation() + shape.tool * X_Base_Nozzle.linear().col(2);
   CHECK((c[2].b_CamR - X_Base_Nozzle.translation()).norm() < 1e-12);
   CHECK((c[2].a_CamR - wrist).norm() < 1e-12);
@@ -324,20 +324,20 @@ TEST_CASE("the simulated arm's links: equal links meet at an elbow above the rea
   CHECK(elbow.z() > (shape.shoulder_Base + (wrist - shape.shoulder_Base) * 0.5).z());
   // Out of reach: stretched straight, the elbow halfway.
   X_Base_Nozzle.translation() = Eigen::Vector3d(2.5, 0, 0.45);
-  const auto far = markcell::host::rig::arm_occluders(shape, identity, X_Base_Nozzle);
+  const auto far = markcell::rig::arm_occluders(shape, identity, X_Base_Nozzle);
   CHECK((far[0].b_CamR - (shape.shoulder_Base + far[1].b_CamR) / 2).norm() < 1e-12);
 }
 
 TEST_CASE("painting capsules over a rendered pair matches ray-casting them with the panel, without heap use") {
   const auto cal = markcell::vision::load_stereo_calibration(markcell::test::source_path("config/calibration/marking_stereo.yaml"));
-  markcell::vision::RenderSettings settings;
+  markcell::rig::RenderSettings settings;
   settings.noise_sigma = 0;  // the two paths must see the same pixels
   settings.blur_sigma_px = 0;
-  const markcell::vision::StereoRenderer renderer(cal, settings);
-  const auto panel = markcell::vision::door_shape();
+  const markcell::rig::StereoRenderer renderer(cal, settings);
+  const auto panel = markcell::rig::door_shape();
   Eigen::Isometry3d X_CamR_Panel = Eigen::Isometry3d::Identity();
   X_CamR_Panel.translation() = Eigen::Vector3d(-0.4, -0.3, 3.1);
-  const std::vector<markcell::vision::Occluder> occ{  // an upper arm and a tool that do not touch
+  const std::vector<markcell::rig::Occluder> occ{  // an upper arm and a tool that do not touch
       {Eigen::Vector3d(0.3, 0.9, 2.5), Eigen::Vector3d(0.0, 0.1, 2.7), 0.06, 70},
       {Eigen::Vector3d(-0.1, -0.1, 2.8), Eigen::Vector3d(-0.35, -0.2, 2.9), 0.03, 35}};
   cv::Mat cast_l, cast_r, plain_l, plain_r;

@@ -22,12 +22,12 @@
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
-#include "markcell/host/rig/scoring.hpp"
+#include "markcell/rig/scoring.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
-#include "markcell/vision/render.hpp"
+#include "markcell/rig/render.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -787,9 +787,9 @@ TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, 
     X.translation() = (1 - f) * a.X_CamR_Panel.translation() + f * b.X_CamR_Panel.translation();
     return X;
   };
-  std::vector<host::rig::TrueDefect> defects;
+  std::vector<rig::TrueDefect> defects;
   for (const auto& d : rec.defects()) defects.push_back({d.id, d.p_Panel});
-  const vision::PanelShape shape = vision::panel_shape(rec.manifest().panel_type);
+  const rig::PanelShape shape = rig::panel_shape(rec.manifest().panel_type);
   const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
 
   constexpr int kPanels = 200;
@@ -818,10 +818,10 @@ TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, 
     }
     const control::PanelResult& r = marking.current();
     faults += r.fault ? 1 : 0;
-    std::vector<host::rig::Spray> sprays;
+    std::vector<rig::Spray> sprays;
     for (std::size_t i = sprays_before; i < cell.sim_nozzle()->total(); ++i)
       sprays.push_back({cell.sim_nozzle()->spray(i).time, X_CamR_Base * control::to_isometry(cell.sim_nozzle()->spray(i).tool)});
-    const auto score = host::rig::score_sprays(
+    const auto score = rig::score_sprays(
         shape, [&](Nanos t) { return truth_at(t - epoch + time_base); }, defects, sprays, {}, 0.010);
     marked += score.marked;
     false_sprays += score.false_sprays;

@@ -12,16 +12,17 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "alloc_guard.hpp"
-#include "markcell/host/rig/line_motion.hpp"
-#include "markcell/host/rig/scenario.hpp"
+#include "markcell/rig/line_motion.hpp"
+#include "markcell/rig/scenario.hpp"
 #include "markcell/vision/optical_flow.hpp"
 #include "markcell/vision/panel_tracker.hpp"
-#include "markcell/vision/render.hpp"
+#include "markcell/rig/render.hpp"
 #include "markcell/vision/stereo_rig.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
 using namespace markcell::vision;
+using namespace markcell::rig;  // the renderer the tests draw their frames with
 
 namespace {
 StereoCalibration paper_rig() { return load_stereo_calibration(test::source_path("config/calibration/marking_stereo.yaml")); }
@@ -36,14 +37,14 @@ StereoCalibration distorted_rig() {
 }
 
 struct Sequence {
-  host::rig::Scenario scenario;
+  rig::Scenario scenario;
   StereoCalibration calibration = paper_rig();
   RenderSettings render;
-  vision::PanelShape panel;
-  host::rig::LineMotion motion;
+  rig::PanelShape panel;
+  rig::LineMotion motion;
   StereoRenderer renderer;
   explicit Sequence(const std::string& name)
-      : scenario(host::rig::make_scenario(name, 3)),
+      : scenario(rig::make_scenario(name, 3)),
         panel(panel_shape(scenario.panel_type)),
         motion(scenario.speed, scenario.path, scenario.duration),
         renderer(calibration, render) {}
@@ -59,7 +60,7 @@ struct Tracked : Sequence {
   PanelTracker tracker;
   explicit Tracked(const std::string& name)
       : Sequence(name),
-        model(host::rig::reference_panel_type(scenario, calibration, render)),
+        model(rig::reference_panel_type(scenario, calibration, render)),
         rig(calibration),
         tracker(rig, model, TrackerParams{}) {}
 };
@@ -191,7 +192,7 @@ TEST_CASE("LK and corner refinement agree with cv::calcOpticalFlowPyrLK, cv::cor
 
 TEST_CASE("panel type files: round trip, and errors that name the file and key") {
   const Sequence s("paper-door");
-  const PanelTypeModel m = host::rig::reference_panel_type(s.scenario, s.calibration, s.render);
+  const PanelTypeModel m = rig::reference_panel_type(s.scenario, s.calibration, s.render);
   REQUIRE(m.count == 10);
   test::TempDir dir;
   save_panel_type((dir.path() / "door.yaml").string(), m);

@@ -17,11 +17,12 @@
 
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/recording.hpp"
-#include "markcell/vision/render.hpp"
+#include "markcell/rig/render.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
 using namespace markcell::vision;
+using namespace markcell::rig;  // the renderer the tests draw their frames with
 
 namespace {
 
@@ -81,7 +82,7 @@ TEST_CASE("the camera model projects as OpenCV's projectPoints, distortion inclu
   // The left camera goes through X_CamL_CamR.
   const StereoRenderer r(paper_rig(), RenderSettings{});
   const Eigen::Vector3d p(0.3, -0.2, 3.1);
-  const cv::Point2d left = cv_project(r.rig().left, r.rig().X_CamR_CamL.inverse(), p);
+  const cv::Point2d left = cv_project(r.cameras().left, r.cameras().X_CamR_CamL.inverse(), p);
   CHECK(r.project(0, p).x() == Approx(left.x).margin(1e-9));
   CHECK(r.project(0, p).y() == Approx(left.y).margin(1e-9));
   // Nominal rig: a point straight ahead of CamR at 3.1 m sits 0.445 * f / 3.1 px to the

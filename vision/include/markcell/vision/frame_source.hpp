@@ -13,6 +13,7 @@
 #include <opencv2/core.hpp>
 
 #include "markcell/common/time.hpp"
+#include "markcell/msg/pose_estimate.hpp"
 #include "markcell/vision/recording.hpp"
 
 namespace markcell::vision {
@@ -39,6 +40,10 @@ class FrameSource {
   // skipped and counted). The pair stays valid until the next call.
   virtual FrameResult next(Nanos now, StereoFrameRef& out) noexcept = 0;
   virtual std::uint64_t skipped() const = 0;
+  // What the tracker made of the last pair handed out (vision lane, after each tracked
+  // pair). A source that changes its pairs (the rig's arm drawn over them) learns here
+  // what that cost; the others ignore it. Must not allocate or block.
+  virtual void tracked(const msg::PoseEstimate& /*estimate*/) noexcept {}
 };
 
 // A recording replayed: frame i is delivered at epoch + time_i + latency. A loader thread

@@ -1,0 +1,297 @@
+#pragma once
+// The cell configuration: one YAML file per cell (config/cell.example.yaml documents
+// every key). Loading validates everything before anything starts and reports every
+// problem, each with file, line, column, key path and what was expected.
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "markcell/common/param.hpp"
+#include "markcell/common/time.hpp"
+#include "markcell/control/executive.hpp"
+#include "markcell/control/line_role.hpp"
+#include "markcell/control/marking.hpp"
+#include "markcell/control/planner.hpp"
+#include "markcell/vision/panel_tracker.hpp"
+
+namespace markcell::host {
+
+// What the loader reads at most (docs/operation.md): a larger file, or one nested
+// deeper, is refused before it is parsed.
+inline constexpr std::size_t kMaxConfigBytes = 1 << 20;
+inline constexpr int kMaxYamlNesting = 64;
+
+struct ConfigError {
+  std::string file;
+  int line = 0;    // 1-based; 0 when the position is unknown
+  int column = 0;  // 1-based
+  std::string path;  // key path, e.g. executive.tasks.plc_io.budget_us
+  std::string message;
+  std::string to_string() const;  // FILE:LINE:COL: PATH: MESSAGE
+};
+
+class ConfigInvalid : public std::runtime_error {
+ public:
+  explicit ConfigInvalid(std::vector<ConfigError> errors);
+  const std::vector<ConfigError>& errors() const { return errors_; }
+
+ private:
+  std::vector<ConfigError> errors_;
+};
+
+// The PLC and cell I/O lines, by role (control/line_role.hpp).
+using control::LineRole;
+using control::kLineRoleCount;
+using control::is_output;
+using control::to_string;
+
+struct GpioLineConfig {
+  std::string line;        // line name as the kernel knows it (gpioinfo), or a number
+  bool active_low = false;
+};
+
+struct GpioConfig {
+  bool simulated = true;
+  std::string chip;        // chip name (gpiochip0), label, or path under /dev
+  std::array<GpioLineConfig, kLineRoleCount> lines;
+  // The PLC inputs' debounce on their edges' times (plc_io.hpp, docs/safety.md): a
+  // pulse shorter than this is ignored, a level that lasts it counts. The valve's own
+  // interlock on panel present is not filtered.
+  Nanos input_filter = millis(3);
+};
+
+enum class ArmTransport : std::uint8_t { kSimulated, kCan, kSerial };
+std::string_view to_string(ArmTransport t);
+
+struct CanConfig {
+  std::string interface = "can0";
+  int node_id = 2;               // the arm's CANopen node id
+  int controller_node_id = 1;    // ours
+  Nanos heartbeat_period = millis(50);
+  Nanos heartbeat_timeout = millis(150);
+  bool fd = false;
+};
+
+struct SerialConfig {
+  std::string device = "/dev/ttyS1";
+  int baud = 115200;
+  Nanos ack_timeout = millis(20);
+  int retries = 3;
+  Nanos state_timeout = millis(150);  // the arm's STATE (its heartbeat) silent this long: link lost
+};
+
+// `devices.arm.limits`. The planner's model (control::ArmTimingModel) owns the
+// defaults of the TCP limits and the reach: the cell's plan uses these values.
+struct ArmLimitsConfig {
+  double reach = control::ArmTimingModel{}.reach;                  // m, from the base origin
+  double max_tcp_speed = control::ArmTimingModel{}.max_speed;      // m/s
+  double max_tcp_accel = control::ArmTimingModel{}.max_accel;      // m/s^2
+  std::array<double, 3> home{0.3, 0.0, 0.6};  // tool position at home, base frame, m
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"reach_m", Unit::kMetre, 0.1, 5.0, "the tool's reach from the base origin", true}, reach);
+    v(Param{"max_tcp_speed_m_s", Unit::kMetrePerSecond, 0.01, 10.0, "the tool's speed limit", true}, max_tcp_speed);
+    v(Param{"max_tcp_accel_m_s2", Unit::kMetrePerSecond2, 0.01, 100.0, "the tool's acceleration limit", true},
+      max_tcp_accel);
+    v(Param{"home_m", Unit::kMetre, -5.0, 5.0, "the tool's position at home, base frame", true}, home);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    if (std::sqrt(home[0] * home[0] + home[1] * home[1] + home[2] * home[2]) > reach)
+      report("home_m", "home is beyond reach_m");
+  }
+};
+
+struct ArmConfig {
+  ArmTransport transport = ArmTransport::kSimulated;
+  CanConfig can;
+  SerialConfig serial;
+  ArmLimitsConfig limits;
+};
+
+// `spray`. The pulse's default is the planner's (control::ArmTimingModel::pulse): the
+// plan times each defect with the pulse the valve gives.
+struct SprayConfig {
+  Nanos pulse = control::ArmTimingModel{}.pulse;
+  Nanos min_pulse = millis(5);
+  Nanos max_pulse = millis(500);
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"pulse_ms", Unit::kMillisecond, 1, 10'000, "length of one spray (the valve opens and closes on the tick)", true},
+      pulse);
+    v(Param{"min_pulse_ms", Unit::kMillisecond, 1, 10'000, "the valve refuses a pulse shorter than this ...", true}, min_pulse);
+    v(Param{"max_pulse_ms", Unit::kMillisecond, 1, 10'000, "... or longer than this (a bad length, not a spray)", true},
+      max_pulse);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    const auto ms = [](Nanos t) { return std::to_string(t / millis(1)); };
+    if (pulse < min_pulse || pulse > max_pulse)
+      report("pulse_ms", "pulse_ms " + ms(pulse) + " is outside [min_pulse_ms, max_pulse_ms] = [" + ms(min_pulse) + ", " +
+                             ms(max_pulse) + "]");
+  }
+};
+
+enum class CameraSource : std::uint8_t { kSimulated, kAravis, kRecording };
+enum class CameraTrigger : std::uint8_t { kSoftware, kHardware };
+std::string_view to_string(CameraSource s);
+std::string_view to_string(CameraTrigger t);
+
+struct CameraConfig {
+  CameraSource source = CameraSource::kSimulated;
+  std::string left_id;
+  std::string right_id;
+  int width = 640;
+  int height = 480;
+  double fps = 30.0;
+  double exposure_us = 4000.0;
+  double gain_db = 0.0;
+  CameraTrigger trigger = CameraTrigger::kHardware;
+  Nanos latency = millis(15);  // exposure to frame in memory (transfer); replayed frames arrive this late
+  Nanos lost_after = millis(1500);  // a live camera with no frame for this long is reported lost and reconnected
+  std::string recording;       // source: recording; absolute
+};
+
+struct WatchdogConfig {
+  bool systemd = true;
+  Nanos systemd_interval = millis(100);  // when systemd gives no WATCHDOG_USEC
+  bool device = false;
+  std::string device_path = "/dev/watchdog";
+  int device_timeout_s = 10;
+};
+
+enum class ArmSafeAction : std::uint8_t { kHold, kHome };
+std::string_view to_string(ArmSafeAction a);
+
+enum class RearmConfig : std::uint8_t { kCycleEnable, kNever };
+
+struct SafeStopConfig {
+  ArmSafeAction arm = ArmSafeAction::kHold;
+  // After an e-stop: the e-stop released, then a rising edge of cycle enable re-arms
+  // (the arm sent home first), or `never` (a restart of the service).
+  RearmConfig rearm = RearmConfig::kCycleEnable;
+  bool plc_fault_line = true;  // raise the PLC fault output on every safe stop
+};
+
+struct PanelTypeConfig {
+  std::string name;
+  int macro_features = 10;
+  std::string file;  // the panel type's MFs and templates (markcell select-mfs); absolute
+};
+
+struct CalibrationPaths {
+  std::string stereo;  // absolute, resolved against the config file's folder
+  std::string base;
+};
+
+// `markcell calibrate-base`: the board on the gripper and the poses the arm takes it to.
+// A pose is [x, y, z] in metres and a rotation vector [rx, ry, rz] in degrees, both in
+// the base frame (the arm link's tool-pose convention).
+using PoseSix = std::array<double, 6>;
+struct BaseCalibrationConfig {
+  int board_cols = 9;           // inner corners
+  int board_rows = 6;
+  double square_m = 0.06;
+  PoseSix X_Tool_Board{-0.24, -0.15, 0.02, 0, 0, 0};  // the board's first inner corner on the tool
+  std::vector<PoseSix> poses;   // at least 6; 15 or more recommended
+  double max_rms_mm = 2.0;      // refuse to write a fit above these
+  double max_abs_mm = 6.0;
+  Nanos move_timeout = seconds(15);  // per pose: in position within this, or the pose is skipped
+  Nanos settle = millis(300);        // in position this long before the picture
+};
+
+struct CellConfig {
+  std::string file;     // the YAML file it came from
+  std::string name;
+  std::string results_file;  // every panel's result appended and synced here (empty: none); absolute
+  std::string record_folder;  // inspection records arrive here (empty: none); absolute
+  control::ExecutiveSpec executive;
+  WatchdogConfig watchdog;
+  SafeStopConfig safe_stop;
+  SprayConfig spray;
+  GpioConfig gpio;
+  ArmConfig arm;
+  CameraConfig cameras;
+  CalibrationPaths calibration;
+  std::vector<PanelTypeConfig> panel_types;
+  vision::TrackerParams vision;    // the `vision:` section (its keys declared in TrackerParams::Visit)
+  control::MarkingParams marking;  // the `marking:` section (MarkingParams::Visit); the cell fills in the rest
+  BaseCalibrationConfig base_calibration;
+};
+
+// What the loader knows of a task. The cell's task table (cell.cpp, kCellTasks) declares
+// each task once, with this and its bind function; the loader's rules, check-config's
+// list (`markcell check-config --tasks`), the schema and docs/executive.md's table come
+// from it.
+enum class TaskKind : std::uint8_t {
+  kControl,  // a short bounded step on a fast lane (1 kHz): devices, PLC, the marking sequence
+  kHeavy,    // per-frame work (the vision task): on a lane with no control task
+};
+enum class TaskPresence : std::uint8_t {
+  kOptional,
+  kRequired,                // in every table
+  kWithSimulatedDevices,    // in the table exactly when a device is simulated
+};
+struct TaskDecl {
+  std::string_view name;
+  TaskKind kind = TaskKind::kControl;
+  TaskPresence presence = TaskPresence::kOptional;
+  std::string_view doc;  // what it does, as a verb phrase ("opens and closes the valve"): a required task's reason
+  // Tasks that must be in the table with this one, each with the reason.
+  struct Need {
+    std::string_view task, why;
+  };
+  std::array<Need, 2> needs{};
+};
+using TaskTable = std::span<const TaskDecl>;
+std::string_view to_string(TaskKind k);
+// The table as docs/executive.md shows it: one Markdown row per task.
+std::string task_table_markdown(TaskTable tasks);
+
+// The configuration's top-level sections, in the example's order.
+struct ConfigSection {
+  std::string_view key;
+  bool required;
+  std::string_view doc;
+};
+inline constexpr std::array<ConfigSection, 11> kConfigSections{{
+    {"cell", true, "the cell's name, its results file and its inspection-record folder"},
+    {"executive", true, "the base tick, the lanes (threads) and the task table"},
+    {"watchdog", true, "systemd's watchdog and the hardware watchdog device"},
+    {"safe_stop", true, "what a safe stop does to the arm and the PLC, and how the cell re-arms"},
+    {"spray", true, "the spray valve's pulse"},
+    {"devices", true, "the GPIO lines, the arm and its link, the cameras"},
+    {"calibration", true, "the stereo and base calibration files"},
+    {"panel_types", true, "each panel type's macro-features file"},
+    {"vision", false, "the panel tracker (all keys optional)"},
+    {"marking", false, "the marking sequence (all keys optional)"},
+    {"base_calibration", false, "markcell calibrate-base: the board and the poses"},
+}};
+
+// A JSON Schema (draft-07) of the configuration, generated from the same declarations
+// the loader reads (the Visit() of each parameter struct): for editors that complete and
+// check cell.yaml. The sections still read by hand are described as objects; the loader
+// (markcell check-config) remains the full check. `known_tasks` names the task table's
+// allowed keys.
+std::string config_schema_json(TaskTable known_tasks);
+
+// Validates and loads; throws ConfigInvalid with every error found. `known_tasks`: the
+// tasks this build of markcell provides (a configured task must be one of them, and their
+// declarations' rules hold).
+CellConfig load_config(const std::string& path, TaskTable known_tasks);
+// The same from text already in memory; `path` names it in messages and is where
+// relative calibration paths are resolved from.
+CellConfig load_config_text(const std::string& text, const std::string& path, TaskTable known_tasks);
+std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
+                                           TaskTable known_tasks);
+// Same checks, returning the errors instead of throwing (empty: valid).
+std::vector<ConfigError> check_config(const std::string& path, TaskTable known_tasks);
+
+}  // namespace markcell::host

@@ -1,0 +1,943 @@
+#include "markcell/host/config.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <optional>
+#include <sstream>
+
+#include "markcell/common/bounded_file.hpp"
+#include "markcell/common/param.hpp"
+
+#include "markcell/vision/calibration_io.hpp"
+#include "markcell/vision/panel_tracker.hpp"
+
+namespace markcell::host {
+
+std::string ConfigError::to_string() const {
+  std::ostringstream os;
+  os << file;
+  if (line > 0) os << ":" << line << ":" << column;
+  os << ": " << (path.empty() ? "(document)" : path) << ": " << message;
+  return os.str();
+}
+
+namespace {
+std::string join_errors(const std::vector<ConfigError>& errors) {
+  std::string s = std::to_string(errors.size()) + " configuration error(s):";
+  for (const auto& e : errors) s += "\n  " + e.to_string();
+  return s;
+}
+}  // namespace
+
+ConfigInvalid::ConfigInvalid(std::vector<ConfigError> errors)
+    : std::runtime_error(join_errors(errors)), errors_(std::move(errors)) {}
+
+std::string_view to_string(ArmTransport t) {
+  return t == ArmTransport::kCan ? "can" : t == ArmTransport::kSerial ? "serial" : "simulated";
+}
+std::string_view to_string(CameraSource s) {
+  return s == CameraSource::kAravis ? "aravis" : s == CameraSource::kRecording ? "recording" : "simulated";
+}
+std::string_view to_string(CameraTrigger t) { return t == CameraTrigger::kHardware ? "hardware" : "software"; }
+std::string_view to_string(TaskKind k) { return k == TaskKind::kHeavy ? "heavy" : "control"; }
+std::string_view to_string(ArmSafeAction a) { return a == ArmSafeAction::kHome ? "home" : "hold"; }
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string node_kind(const YAML::Node& n) {
+  switch (n.Type()) {
+    case YAML::NodeType::Map: return "a map";
+    case YAML::NodeType::Sequence: return "a sequence";
+    case YAML::NodeType::Null: return "nothing (null)";
+    case YAML::NodeType::Scalar: return "\"" + n.Scalar() + "\"";
+    default: return "nothing";
+  }
+}
+
+std::string join(const std::vector<std::string>& items) {
+  std::string s;
+  for (const auto& i : items) s += (s.empty() ? "" : ", ") + i;
+  return s;
+}
+
+const TaskDecl* find_task(TaskTable table, std::string_view name) {
+  for (const auto& d : table)
+    if (d.name == name) return &d;
+  return nullptr;
+}
+
+// Walks the document, collecting every error with its position. Each `map()` call
+// declares the keys a map may have; anything else is reported as unknown.
+class Reader {
+ public:
+  Reader(std::string file, std::vector<ConfigError>& errors) : file_(std::move(file)), errors_(errors) {}
+
+  void error(const YAML::Node& at, const std::string& path, const std::string& message) {
+    ConfigError e;
+    e.file = file_;
+    const YAML::Mark mark = at.IsDefined() ? at.Mark() : YAML::Mark::null_mark();
+    if (mark.line >= 0) {
+      e.line = mark.line + 1;
+      e.column = mark.column + 1;
+    }
+    e.path = path;
+    e.message = message;
+    errors_.push_back(std::move(e));
+  }
+  void error_at(const YAML::Mark& mark, const std::string& path, const std::string& message) {
+    errors_.push_back(ConfigError{file_, mark.line + 1, mark.column + 1, path, message});
+  }
+
+  // A map with exactly these keys allowed. Returns false (after reporting) when the node
+  // is not a map.
+  bool map(const YAML::Node& node, const std::string& path, const std::vector<std::string>& allowed) {
+    if (!node.IsMap()) {
+      error(node, path, "expected a map, got " + node_kind(node));
+      return false;
+    }
+    std::vector<std::string> seen;
+    for (const auto& kv : node) {
+      const std::string key = kv.first.Scalar();
+      const std::string key_path = path.empty() ? key : path + "." + key;
+      if (std::find(seen.begin(), seen.end(), key) != seen.end()) {
+        error_at(kv.first.Mark(), key_path, "duplicate key '" + key + "'");
+      }
+      seen.push_back(key);
+      if (std::find(allowed.begin(), allowed.end(), key) == allowed.end())
+        error_at(kv.first.Mark(), key_path, "unknown key '" + key + "' (expected one of: " + join(allowed) + ")");
+    }
+    return true;
+  }
+
+  // A map whose keys are names the caller checks (lanes, tasks, panel types).
+  bool named_map(const YAML::Node& node, const std::string& path) {
+    if (!node.IsMap()) {
+      error(node, path, "expected a map of names, got " + node_kind(node));
+      return false;
+    }
+    if (node.size() == 0) {
+      error(node, path, "expected at least one entry");
+      return false;
+    }
+    return true;
+  }
+
+  // Returns the child or, when required and missing, reports it (at the parent).
+  // A key given twice in one map: yaml-cpp keeps one of them silently (a task declared
+  // twice, a panel type twice). Each repeat is an error at its own position. Bounded:
+  // the text's nesting was checked before parsing.
+  void duplicate_keys(const YAML::Node& node, const std::string& path, int depth = 0) {
+    if (depth > kMaxYamlNesting) return;
+    if (node.IsMap()) {
+      std::vector<std::string> seen;
+      for (const auto& kv : node) {
+        const std::string key = kv.first.IsScalar() ? kv.first.Scalar() : std::string();
+        if (!key.empty() && std::find(seen.begin(), seen.end(), key) != seen.end())
+          error(kv.first, join_path(path, key), "declared twice in this map (yaml would keep only one)");
+        seen.push_back(key);
+        duplicate_keys(kv.second, join_path(path, key), depth + 1);
+      }
+    } else if (node.IsSequence()) {
+      for (std::size_t i = 0; i < node.size(); ++i) duplicate_keys(node[i], path + "[" + std::to_string(i) + "]", depth + 1);
+    }
+  }
+
+  std::optional<YAML::Node> child(const YAML::Node& parent, const std::string& path, const std::string& key,
+                                  bool required) {
+    if (!parent.IsMap()) return std::nullopt;
+    const YAML::Node n = parent[key];
+    if (!n.IsDefined()) {
+      if (required) error(parent, join_path(path, key), "missing required key '" + key + "'");
+      return std::nullopt;
+    }
+    return n;
+  }
+
+  static std::string join_path(const std::string& path, const std::string& key) {
+    return path.empty() ? key : path + "." + key;
+  }
+
+  template <typename T>
+  void integer(const YAML::Node& parent, const std::string& path, const std::string& key, T& out, long long lo,
+               long long hi, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    long long v = 0;
+    const std::string range = "[" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+    if (!n->IsScalar() || !YAML::convert<long long>::decode(*n, v)) {
+      error(*n, p, "expected an integer in " + range + ", got " + node_kind(*n));
+      return;
+    }
+    if (v < lo || v > hi) {
+      error(*n, p, "expected an integer in " + range + ", got " + std::to_string(v));
+      return;
+    }
+    out = static_cast<T>(v);
+  }
+
+  void number(const YAML::Node& parent, const std::string& path, const std::string& key, double& out, double lo,
+              double hi, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    double v = 0;
+    std::ostringstream range;
+    range << "[" << lo << ", " << hi << "]";
+    if (!n->IsScalar() || !YAML::convert<double>::decode(*n, v) || !std::isfinite(v)) {
+      error(*n, p, "expected a number in " + range.str() + ", got " + node_kind(*n));
+      return;
+    }
+    if (v < lo || v > hi) {
+      std::ostringstream os;
+      os << "expected a number in " << range.str() << ", got " << v;
+      error(*n, p, os.str());
+      return;
+    }
+    out = v;
+  }
+
+  void boolean(const YAML::Node& parent, const std::string& path, const std::string& key, bool& out,
+               bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    bool v = false;
+    if (!n->IsScalar() || !YAML::convert<bool>::decode(*n, v)) {
+      error(*n, join_path(path, key), "expected true or false, got " + node_kind(*n));
+      return;
+    }
+    out = v;
+  }
+
+  void text(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out,
+            bool required = true, std::size_t max_length = 255) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    if (!n->IsScalar() || n->Scalar().empty()) {
+      error(*n, p, "expected a non-empty string, got " + node_kind(*n));
+      return;
+    }
+    if (n->Scalar().size() > max_length) {
+      error(*n, p, "expected at most " + std::to_string(max_length) + " characters, got " +
+                       std::to_string(n->Scalar().size()));
+      return;
+    }
+    out = n->Scalar();
+  }
+
+  template <typename E>
+  void choice(const YAML::Node& parent, const std::string& path, const std::string& key, E& out,
+              const std::vector<std::pair<std::string, E>>& options, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    std::vector<std::string> names;
+    for (const auto& o : options) names.push_back(o.first);
+    if (n->IsScalar()) {
+      for (const auto& o : options)
+        if (o.first == n->Scalar()) {
+          out = o.second;
+          return;
+        }
+    }
+    error(*n, join_path(path, key), "expected one of: " + join(names) + ", got " + node_kind(*n));
+  }
+
+  void vec3(const YAML::Node& parent, const std::string& path, const std::string& key, std::array<double, 3>& out,
+            double lo, double hi, bool required = true) {
+    const auto n = child(parent, path, key, required);
+    if (!n) return;
+    const std::string p = join_path(path, key);
+    std::ostringstream expected;
+    expected << "expected a sequence of 3 numbers in [" << lo << ", " << hi << "]";
+    if (!n->IsSequence() || n->size() != 3) {
+      error(*n, p, expected.str() + ", got " + node_kind(*n));
+      return;
+    }
+    std::array<double, 3> v{};
+    for (std::size_t i = 0; i < 3; ++i) {
+      const YAML::Node e = (*n)[i];
+      if (!e.IsScalar() || !YAML::convert<double>::decode(e, v[i]) || !std::isfinite(v[i]) || v[i] < lo || v[i] > hi) {
+        error(e, p + "[" + std::to_string(i) + "]", expected.str() + ", got " + node_kind(e));
+        return;
+      }
+    }
+    out = v;
+  }
+
+  // A path relative to the configuration's folder that must name an existing file (or,
+  // with `folder`, an existing folder).
+  void existing_file(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& out,
+                     bool folder = false) {
+    std::string raw;
+    text(parent, path, key, raw, true, 4096);
+    if (raw.empty()) return;
+    fs::path p(raw);
+    if (p.is_relative()) p = fs::path(file_).parent_path() / p;
+    p = p.lexically_normal();
+    std::error_code ec;
+    if (folder ? !fs::is_directory(p, ec) : !fs::is_regular_file(p, ec)) {
+      error((*child(parent, path, key, true)), join_path(path, key),
+            std::string(folder ? "folder '" : "file '") + raw + "' not found (looked for " + p.string() + ")");
+      return;
+    }
+    out = p.string();
+  }
+
+  std::size_t error_count() const { return errors_.size(); }
+
+ private:
+  std::string file_;
+  std::vector<ConfigError>& errors_;
+};
+
+// Reads the parameters a struct declares in its Visit() from one section of the YAML,
+// through the Reader (so every error keeps its FILE:LINE:COL: key.path: form). A key
+// left out keeps the field's declared default untouched; a key given is converted once
+// from the unit the configuration writes it in to the field's SI.
+class YamlParams {
+ public:
+  YamlParams(Reader& r, const YAML::Node& node, std::string path) : r_(r), node_(node), path_(std::move(path)) {}
+
+  void operator()(const Param& p, double& field) {
+    if (!given(p)) return;
+    double v = 0;
+    r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok()) field = to_si(v, p.unit);
+  }
+  void operator()(const Param& p, int& field) {
+    if (!given(p)) return;
+    long long v = 0;
+    r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
+    if (!read_ok()) return;
+    if (p.unit == Unit::kOddWindowPx) {
+      if (v % 2 == 0) {
+        r_.error(node_[std::string(p.key)], key_path(p), "must be odd (a window centred on the point)");
+        return;
+      }
+      field = static_cast<int>(v / 2);
+    } else {
+      field = static_cast<int>(v);
+    }
+  }
+  void operator()(const Param& p, Nanos& field) {
+    if (!given(p)) return;
+    if (p.unit == Unit::kMillisecond) {
+      long long v = 0;
+      r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
+      if (read_ok()) field = millis(v);
+    } else {
+      double v = 0;
+      r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+      if (read_ok()) field = static_cast<Nanos>(v * 1e9);
+    }
+  }
+  void operator()(const Param& p, bool& field) {
+    if (given(p)) r_.boolean(node_, path_, std::string(p.key), field, false);
+  }
+  void operator()(const Param& p, Eigen::Vector3d& field) {
+    if (!given(p)) return;
+    std::array<double, 3> v{field.x(), field.y(), field.z()};
+    r_.vec3(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok()) field = Eigen::Vector3d(v[0], v[1], v[2]);
+  }
+  void operator()(const Param& p, std::array<double, 3>& field) {
+    if (!given(p)) return;
+    std::array<double, 3> v = field;
+    r_.vec3(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
+    if (read_ok())
+      for (std::size_t i = 0; i < 3; ++i) field[i] = to_si(v[i], p.unit);
+  }
+  template <typename E, std::size_t N>
+  void operator()(const Param& p, Choice<E, N> c) {
+    if (!given(p)) return;
+    std::vector<std::pair<std::string, E>> options;
+    for (const auto& o : c.options) options.emplace_back(std::string(o.name), o.value);
+    r_.choice(node_, path_, std::string(p.key), c.value, options, false);
+  }
+
+ private:
+  // Whether the key is there; read_ok() then says whether reading it added no error.
+  // A required key left out is reported here (at its section).
+  bool given(const Param& p) {
+    errors_before_ = r_.error_count();
+    return r_.child(node_, path_, std::string(p.key), p.required).has_value();
+  }
+  bool read_ok() const { return r_.error_count() == errors_before_; }
+  std::string key_path(const Param& p) const { return path_ + "." + std::string(p.key); }
+
+  Reader& r_;
+  const YAML::Node& node_;
+  std::string path_;
+  std::size_t errors_before_ = 0;
+};
+
+// The keys a struct's Visit() declares, in its order: what its section may hold.
+struct ParamKeys {
+  std::vector<std::string> keys;
+  template <typename T>
+  void operator()(const Param& p, T&&) {
+    keys.emplace_back(p.key);
+  }
+};
+
+// One section whose parameters a struct declares (TrackerParams, MarkingParams, ...): its
+// keys, each read and converted, then the struct's own cross-field checks.
+template <class Params>
+void read_params(Reader& r, const YAML::Node& node, const std::string& path, Params& params) {
+  ParamKeys declared;
+  params.Visit(declared);
+  if (!r.map(node, path, declared.keys)) return;
+  YamlParams reader(r, node, path);
+  params.Visit(reader);
+  params.validate([&](std::string_view key, std::string_view message) {
+    r.error(node[std::string(key)], path + "." + std::string(key), std::string(message));
+  });
+}
+
+void read_executive(Reader& r, const YAML::Node& node, TaskTable known_tasks, CellConfig& cfg,
+                    std::vector<YAML::Mark>& task_marks) {
+  const std::string P = "executive";
+  if (!r.map(node, P, {"base_tick_us", "lane_stall_ms", "supervisor_period_ms", "degrade_recovery_runs",
+                       "lock_memory", "lanes", "tasks"}))
+    return;
+  auto& spec = cfg.executive;
+  long long tick_us = 0;
+  r.integer(node, P, "base_tick_us", tick_us, 50, 1'000'000);
+  spec.tick = micros(tick_us);
+  long long stall_ms = 0, sup_ms = 0;
+  r.integer(node, P, "lane_stall_ms", stall_ms, 1, 60'000);
+  r.integer(node, P, "supervisor_period_ms", sup_ms, 1, 10'000);
+  spec.lane_stall_limit = millis(stall_ms);
+  spec.supervisor_period = millis(sup_ms);
+  r.integer(node, P, "degrade_recovery_runs", spec.degrade_recovery_runs, 1, 1'000'000, false);
+  r.boolean(node, P, "lock_memory", spec.lock_memory, false);
+  if (sup_ms > 0 && stall_ms > 0 && sup_ms * 2 > stall_ms)
+    r.error(node["supervisor_period_ms"], P + ".supervisor_period_ms",
+            "supervisor_period_ms " + std::to_string(sup_ms) + " must be at most half of lane_stall_ms " +
+                std::to_string(stall_ms) + ", or a stall could go unseen for too long");
+
+  std::vector<std::string> lane_names;
+  if (const auto lanes = r.child(node, P, "lanes", true); lanes && r.named_map(*lanes, P + ".lanes")) {
+    if (lanes->size() > static_cast<std::size_t>(control::kMaxTaskLanes))
+      r.error(*lanes, P + ".lanes",
+              "at most " + std::to_string(control::kMaxTaskLanes) + " lanes, got " + std::to_string(lanes->size()));
+    for (const auto& kv : *lanes) {
+      const std::string name = kv.first.Scalar();
+      const std::string LP = P + ".lanes." + name;
+      control::LaneSpec lane;
+      lane.name = name;
+      if (r.map(kv.second, LP, {"core", "priority"})) {
+        r.integer(kv.second, LP, "core", lane.core, -1, 1023);
+        r.integer(kv.second, LP, "priority", lane.priority, 0, 99);
+      }
+      lane_names.push_back(name);
+      spec.lanes.push_back(lane);
+    }
+  }
+
+  if (const auto tasks = r.child(node, P, "tasks", true); tasks && r.named_map(*tasks, P + ".tasks")) {
+    if (tasks->size() > static_cast<std::size_t>(control::kMaxTasks))
+      r.error(*tasks, P + ".tasks",
+              "at most " + std::to_string(control::kMaxTasks) + " tasks, got " + std::to_string(tasks->size()));
+    for (const auto& kv : *tasks) {
+      const std::string name = kv.first.Scalar();
+      const std::string TP = P + ".tasks." + name;
+      if (!find_task(known_tasks, name)) {
+        std::vector<std::string> names;
+        for (const auto& d : known_tasks) names.emplace_back(d.name);
+        r.error_at(kv.first.Mark(), TP, "unknown task '" + name + "' (markcell provides: " + join(names) + ")");
+      }
+      const YAML::Node& t = kv.second;
+      if (!r.map(t, TP, {"lane", "period_us", "phase_us", "budget_us", "on_overrun"})) continue;
+      control::TaskSpec task;
+      task.name = name;
+      std::string lane;
+      r.text(t, TP, "lane", lane);
+      if (!lane.empty()) {
+        const auto it = std::find(lane_names.begin(), lane_names.end(), lane);
+        if (it == lane_names.end())
+          r.error(t["lane"], TP + ".lane",
+                  "lane '" + lane + "' is not declared in executive.lanes (declared: " + join(lane_names) + ")");
+        else
+          task.lane = static_cast<int>(it - lane_names.begin());
+      }
+      long long period_us = 0, phase_us = 0, budget_us = 0;
+      r.integer(t, TP, "period_us", period_us, 1, 3'600'000'000LL);
+      r.integer(t, TP, "phase_us", phase_us, 0, 3'600'000'000LL, false);
+      r.integer(t, TP, "budget_us", budget_us, 1, 3'600'000'000LL);
+      r.choice(t, TP, "on_overrun", task.overrun,
+               {{"log", control::OverrunPolicy::kLog},
+                {"degrade", control::OverrunPolicy::kDegrade},
+                {"safe_stop", control::OverrunPolicy::kSafeStop}},
+               false);
+      if (tick_us > 0 && period_us > 0) {
+        if (period_us % tick_us != 0)
+          r.error(t["period_us"], TP + ".period_us",
+                  "period_us " + std::to_string(period_us) + " is not a multiple of executive.base_tick_us " +
+                      std::to_string(tick_us));
+        else
+          task.period_ticks = static_cast<std::uint32_t>(period_us / tick_us);
+        if (phase_us % tick_us != 0)
+          r.error(t["phase_us"], TP + ".phase_us",
+                  "phase_us " + std::to_string(phase_us) + " is not a multiple of executive.base_tick_us " +
+                      std::to_string(tick_us));
+        else if (phase_us >= period_us)
+          r.error(t["phase_us"], TP + ".phase_us",
+                  "phase_us " + std::to_string(phase_us) + " must be less than period_us " + std::to_string(period_us));
+        else
+          task.phase_ticks = static_cast<std::uint32_t>(phase_us / tick_us);
+      }
+      if (budget_us > 0 && period_us > 0 && budget_us > period_us)
+        r.error(t["budget_us"], TP + ".budget_us",
+                "budget_us " + std::to_string(budget_us) + " is longer than period_us " + std::to_string(period_us));
+      task.budget = micros(budget_us);
+      spec.tasks.push_back(task);
+      task_marks.push_back(kv.first.Mark());
+    }
+    // Every lane must run something, and the stall limit must allow for its slowest gap.
+    for (std::size_t l = 0; l < spec.lanes.size(); ++l) {
+      long long gap_us = 0;
+      bool has_task = false;
+      for (const auto& task : spec.tasks)
+        if (task.lane == static_cast<int>(l)) {
+          has_task = true;
+          const long long p = static_cast<long long>(task.period_ticks) * tick_us;
+          if (gap_us == 0 || p < gap_us) gap_us = p;
+        }
+      const std::string LP = P + ".lanes." + spec.lanes[l].name;
+      if (!has_task)
+        r.error(node["lanes"][spec.lanes[l].name], LP, "lane '" + spec.lanes[l].name + "' runs no task");
+      else if (gap_us > 0 && stall_ms > 0 && stall_ms * 1000 <= 2 * gap_us)
+        r.error(node["lane_stall_ms"], P + ".lane_stall_ms",
+                "lane_stall_ms " + std::to_string(stall_ms) + " must exceed twice the period of lane '" +
+                    spec.lanes[l].name + "' (" + std::to_string(gap_us) + " us)");
+    }
+  }
+}
+
+void read_watchdog(Reader& r, const YAML::Node& node, WatchdogConfig& w) {
+  const std::string P = "watchdog";
+  if (!r.map(node, P, {"systemd", "systemd_interval_ms", "device"})) return;
+  r.boolean(node, P, "systemd", w.systemd);
+  long long interval_ms = 100;
+  r.integer(node, P, "systemd_interval_ms", interval_ms, 10, 600'000, false);
+  w.systemd_interval = millis(interval_ms);
+  if (const auto d = r.child(node, P, "device", true); d && r.map(*d, P + ".device", {"enabled", "path", "timeout_s"})) {
+    r.boolean(*d, P + ".device", "enabled", w.device);
+    r.text(*d, P + ".device", "path", w.device_path);
+    r.integer(*d, P + ".device", "timeout_s", w.device_timeout_s, 0, 3600);
+  }
+}
+
+void read_gpio(Reader& r, const YAML::Node& node, GpioConfig& g) {
+  const std::string P = "devices.gpio";
+  if (!r.map(node, P, {"simulated", "chip", "lines", "input_filter_us"})) return;
+  r.boolean(node, P, "simulated", g.simulated);
+  long long filter_us = g.input_filter / kNanosPerMicro;
+  r.integer(node, P, "input_filter_us", filter_us, 0, 100'000, false);
+  g.input_filter = filter_us * kNanosPerMicro;
+  r.text(node, P, "chip", g.chip);
+  std::vector<std::string> roles;
+  for (std::size_t i = 0; i < kLineRoleCount; ++i) roles.emplace_back(to_string(static_cast<LineRole>(i)));
+  const auto lines = r.child(node, P, "lines", true);
+  if (!lines || !r.map(*lines, P + ".lines", roles)) return;
+  for (std::size_t i = 0; i < kLineRoleCount; ++i) {
+    const std::string LP = P + ".lines." + roles[i];
+    const auto l = r.child(*lines, P + ".lines", roles[i], true);
+    if (!l || !r.map(*l, LP, {"line", "active_low"})) continue;
+    r.text(*l, LP, "line", g.lines[i].line);
+    r.boolean(*l, LP, "active_low", g.lines[i].active_low, false);
+    for (std::size_t j = 0; j < i; ++j)
+      if (!g.lines[i].line.empty() && g.lines[j].line == g.lines[i].line)
+        r.error((*l)["line"], LP + ".line",
+                "line '" + g.lines[i].line + "' is already used by " + roles[j] + " (each role needs its own line)");
+  }
+}
+
+void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
+  const std::string P = "devices.arm";
+  if (!r.map(node, P, {"transport", "can", "serial", "limits"})) return;
+  if (const auto l = r.child(node, P, "limits", true)) read_params(r, *l, P + ".limits", a.limits);
+  r.choice(node, P, "transport", a.transport,
+           {{"simulated", ArmTransport::kSimulated}, {"can", ArmTransport::kCan}, {"serial", ArmTransport::kSerial}});
+  if (const auto c = r.child(node, P, "can", a.transport == ArmTransport::kCan);
+      c && r.map(*c, P + ".can", {"interface", "node_id", "controller_node_id", "heartbeat_ms", "heartbeat_timeout_ms", "fd"})) {
+    const std::string CP = P + ".can";
+    r.text(*c, CP, "interface", a.can.interface, true, 15);  // IFNAMSIZ - 1
+    r.integer(*c, CP, "node_id", a.can.node_id, 1, 127);
+    r.integer(*c, CP, "controller_node_id", a.can.controller_node_id, 1, 127);
+    long long hb = 50, hbt = 150;
+    r.integer(*c, CP, "heartbeat_ms", hb, 1, 65'535);
+    r.integer(*c, CP, "heartbeat_timeout_ms", hbt, 1, 65'535);
+    r.boolean(*c, CP, "fd", a.can.fd, false);
+    a.can.heartbeat_period = millis(hb);
+    a.can.heartbeat_timeout = millis(hbt);
+    if (a.can.node_id == a.can.controller_node_id)
+      r.error((*c)["controller_node_id"], CP + ".controller_node_id",
+              "controller_node_id must differ from node_id " + std::to_string(a.can.node_id));
+    if (hbt <= hb)
+      r.error((*c)["heartbeat_timeout_ms"], CP + ".heartbeat_timeout_ms",
+              "heartbeat_timeout_ms " + std::to_string(hbt) + " must exceed heartbeat_ms " + std::to_string(hb));
+  }
+  if (const auto s = r.child(node, P, "serial", a.transport == ArmTransport::kSerial);
+      s && r.map(*s, P + ".serial", {"device", "baud", "ack_timeout_ms", "retries", "state_timeout_ms"})) {
+    const std::string SP = P + ".serial";
+    r.text(*s, SP, "device", a.serial.device);
+    r.integer(*s, SP, "baud", a.serial.baud, 1, 4'000'000);
+    static constexpr std::array<int, 10> kBauds = {9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000};
+    if (a.serial.baud > 0 && std::find(kBauds.begin(), kBauds.end(), a.serial.baud) == kBauds.end())
+      r.error((*s)["baud"], SP + ".baud",
+              "baud " + std::to_string(a.serial.baud) +
+                  " is not a termios rate (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000)");
+    long long ack = 20;
+    r.integer(*s, SP, "ack_timeout_ms", ack, 1, 10'000);
+    a.serial.ack_timeout = millis(ack);
+    r.integer(*s, SP, "retries", a.serial.retries, 0, 100);
+    long long state = a.serial.state_timeout / millis(1);
+    r.integer(*s, SP, "state_timeout_ms", state, 1, 65'535, false);
+    a.serial.state_timeout = millis(state);
+  }
+}
+
+void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
+  const std::string P = "devices.cameras";
+  if (!r.map(node, P, {"source", "left_id", "right_id", "width", "height", "fps", "exposure_us", "gain_db", "trigger",
+                       "latency_ms", "lost_after_ms", "recording"}))
+    return;
+  r.choice(node, P, "source", c.source,
+           {{"simulated", CameraSource::kSimulated}, {"aravis", CameraSource::kAravis}, {"recording", CameraSource::kRecording}});
+  const bool ids_required = c.source == CameraSource::kAravis;
+  r.text(node, P, "left_id", c.left_id, ids_required);
+  r.text(node, P, "right_id", c.right_id, ids_required);
+  if (!c.left_id.empty() && c.left_id == c.right_id)
+    r.error(node["right_id"], P + ".right_id", "right_id must differ from left_id '" + c.left_id + "'");
+  r.integer(node, P, "width", c.width, 16, 16384);
+  r.integer(node, P, "height", c.height, 16, 16384);
+  r.number(node, P, "fps", c.fps, 0.1, 1000.0);
+  r.number(node, P, "exposure_us", c.exposure_us, 1.0, 1e6);
+  r.number(node, P, "gain_db", c.gain_db, 0.0, 48.0, false);
+  r.choice(node, P, "trigger", c.trigger, {{"software", CameraTrigger::kSoftware}, {"hardware", CameraTrigger::kHardware}});
+  long long latency = 15;
+  r.integer(node, P, "latency_ms", latency, 0, 1000, false);
+  c.latency = millis(latency);
+  long long lost_after = 1500;
+  r.integer(node, P, "lost_after_ms", lost_after, 100, 60000, false);
+  c.lost_after = millis(lost_after);
+  if (c.source == CameraSource::kRecording) {
+    r.existing_file(node, P, "recording", c.recording, true);
+  } else if (node["recording"].IsDefined()) {
+    r.error(node["recording"], P + ".recording", "only used with source: recording");
+  }
+  if (c.fps > 0 && c.exposure_us > 1e6 / c.fps)
+    r.error(node["exposure_us"], P + ".exposure_us", "exposure longer than the frame period at the configured fps");
+}
+
+void read_calibration(Reader& r, const YAML::Node& node, CellConfig& cfg) {
+  const std::string P = "calibration";
+  if (!r.map(node, P, {"stereo", "base"})) return;
+  r.existing_file(node, P, "stereo", cfg.calibration.stereo);
+  r.existing_file(node, P, "base", cfg.calibration.base);
+  // The files themselves: parsed now so that a bad matrix stops the start, with its key.
+  if (!cfg.calibration.stereo.empty()) {
+    try {
+      const auto stereo = vision::load_stereo_calibration(cfg.calibration.stereo);
+      if (stereo.left.width != cfg.cameras.width || stereo.left.height != cfg.cameras.height)
+        r.error(node["stereo"], P + ".stereo",
+                "calibrated for " + std::to_string(stereo.left.width) + "x" + std::to_string(stereo.left.height) +
+                    " images, devices.cameras is " + std::to_string(cfg.cameras.width) + "x" +
+                    std::to_string(cfg.cameras.height));
+    } catch (const vision::CalibrationError& e) {
+      r.error(node["stereo"], P + ".stereo", e.what());
+    }
+  }
+  if (!cfg.calibration.base.empty()) {
+    try {
+      vision::load_pose(cfg.calibration.base, "X_Base_CamR");
+    } catch (const vision::CalibrationError& e) {
+      r.error(node["base"], P + ".base", e.what());
+    }
+  }
+}
+
+void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
+  const std::string P = "panel_types";
+  if (!r.named_map(node, P)) return;
+  for (const auto& kv : node) {
+    const std::string name = kv.first.Scalar();
+    const std::string TP = P + "." + name;
+    PanelTypeConfig panel;
+    panel.name = name;
+    if (r.map(kv.second, TP, {"macro_features", "file"})) {
+      r.integer(kv.second, TP, "macro_features", panel.macro_features, 3, 16);
+      if (kv.second["file"].IsDefined()) {
+        r.existing_file(kv.second, TP, "file", panel.file);
+        if (!panel.file.empty()) {
+          try {
+            const auto model = vision::load_panel_type(panel.file);
+            if (model.count != panel.macro_features)
+              r.error(kv.second["file"], TP + ".file",
+                      "has " + std::to_string(model.count) + " macro-features, macro_features says " +
+                          std::to_string(panel.macro_features));
+            if (model.name != name)
+              r.error(kv.second["file"], TP + ".file", "is the panel type '" + model.name + "', not '" + name + "'");
+          } catch (const std::exception& e) {
+            r.error(kv.second["file"], TP + ".file", e.what());
+          }
+        }
+      }
+    }
+    cfg.panel_types.push_back(panel);
+  }
+}
+
+void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationConfig& b) {
+  const std::string P = "base_calibration";
+  if (!r.map(node, P, {"board", "X_Tool_Board", "poses", "max_rms_mm", "max_abs_mm", "move_timeout_s", "settle_ms"})) return;
+  if (const auto board = r.child(node, P, "board", false); board && r.map(*board, P + ".board", {"cols", "rows", "square_m"})) {
+    r.integer(*board, P + ".board", "cols", b.board_cols, 3, 40);
+    r.integer(*board, P + ".board", "rows", b.board_rows, 3, 40);
+    r.number(*board, P + ".board", "square_m", b.square_m, 0.002, 0.5);
+  }
+  // Six numbers: a position in metres and a rotation vector in degrees.
+  const auto six = [&](const YAML::Node& n, const std::string& path, PoseSix& out) {
+    const char* expected = "expected [x, y, z, rx, ry, rz]: metres within 10, a rotation vector in degrees within 360";
+    if (!n.IsSequence() || n.size() != 6) {
+      r.error(n, path, std::string(expected) + ", got " + node_kind(n));
+      return false;
+    }
+    PoseSix v{};
+    for (std::size_t i = 0; i < 6; ++i) {
+      const YAML::Node e = n[i];
+      const double lim = i < 3 ? 10.0 : 360.0;
+      if (!e.IsScalar() || !YAML::convert<double>::decode(e, v[i]) || !std::isfinite(v[i]) || std::abs(v[i]) > lim) {
+        r.error(e, path + "[" + std::to_string(i) + "]", std::string(expected) + ", got " + node_kind(e));
+        return false;
+      }
+    }
+    out = v;
+    return true;
+  };
+  if (const auto m = r.child(node, P, "X_Tool_Board", false)) six(*m, P + ".X_Tool_Board", b.X_Tool_Board);
+  if (const auto poses = r.child(node, P, "poses", false)) {
+    if (!poses->IsSequence() || poses->size() < 6 || poses->size() > 200) {
+      r.error(*poses, P + ".poses", "expected a list of 6 to 200 poses, got " + node_kind(*poses) +
+                                        (poses->IsSequence() ? " of " + std::to_string(poses->size()) : std::string()));
+    } else {
+      b.poses.clear();
+      for (std::size_t i = 0; i < poses->size(); ++i) {
+        PoseSix p{};
+        if (six((*poses)[i], P + ".poses[" + std::to_string(i) + "]", p)) b.poses.push_back(p);
+      }
+    }
+  }
+  r.number(node, P, "max_rms_mm", b.max_rms_mm, 0.01, 100.0, false);
+  r.number(node, P, "max_abs_mm", b.max_abs_mm, 0.01, 500.0, false);
+  double move = to_seconds(b.move_timeout);
+  long long settle = b.settle / 1'000'000;
+  r.number(node, P, "move_timeout_s", move, 0.1, 600.0, false);
+  r.integer(node, P, "settle_ms", settle, 0, 60'000, false);
+  b.move_timeout = static_cast<Nanos>(move * 1e9);
+  b.settle = millis(settle);
+}
+
+}  // namespace
+
+std::vector<ConfigError> check_config(const std::string& path, TaskTable known_tasks) {
+  std::vector<ConfigError> errors;
+  try {
+    load_config(path, known_tasks);
+  } catch (const ConfigInvalid& e) {
+    errors = e.errors();
+  }
+  return errors;
+}
+
+CellConfig load_config(const std::string& path, TaskTable known_tasks) {
+  std::string text;
+  try {
+    text = read_bounded_file(path, kMaxConfigBytes, "a cell configuration");
+  } catch (const FileRefused& e) {
+    // The message starts with the path; the error names it once.
+    std::string what = e.what();
+    if (what.rfind(path + ": ", 0) == 0) what.erase(0, path.size() + 2);
+    throw ConfigInvalid({ConfigError{path, 0, 0, "", what}});
+  }
+  return load_config_text(text, path, known_tasks);
+}
+
+std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
+                                           TaskTable known_tasks) {
+  std::vector<ConfigError> errors;
+  try {
+    load_config_text(text, path, known_tasks);
+  } catch (const ConfigInvalid& e) {
+    errors = e.errors();
+  }
+  return errors;
+}
+
+CellConfig load_config_text(const std::string& text, const std::string& path, TaskTable known_tasks) {
+  std::vector<ConfigError> errors;
+  Reader r(path, errors);
+  CellConfig cfg;
+  cfg.file = path;
+  YAML::Node root;
+  if (text.size() > kMaxConfigBytes)
+    throw ConfigInvalid({ConfigError{path, 1, 1, "", std::to_string(text.size()) + " bytes, more than the " +
+                                                       std::to_string(kMaxConfigBytes) + " allowed for a cell configuration"}});
+  if (const int line = nesting_beyond(text, kMaxYamlNesting); line > 0)
+    throw ConfigInvalid({ConfigError{path, line, 1, "", "nested more than " + std::to_string(kMaxYamlNesting) + " levels deep"}});
+  try {
+    if (const int line = second_document_line(text); line > 0)
+      throw ConfigInvalid({ConfigError{path, line, 1, "", "a second YAML document: a cell configuration is one document"}});
+    root = YAML::Load(text);
+    if (!root.IsDefined() || root.IsNull())
+      throw ConfigInvalid({ConfigError{path, 1, 1, "", "the file is empty: expected the cell configuration (a map)"}});
+  } catch (const YAML::ParserException& e) {
+    throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML syntax: " + e.msg}});
+  } catch (const YAML::Exception& e) {
+    throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML: " + e.msg}});
+  }
+  r.duplicate_keys(root, "");
+  if (!errors.empty()) throw ConfigInvalid(errors);
+  std::vector<std::string> sections;
+  for (const auto& section : kConfigSections) sections.emplace_back(section.key);
+  if (!r.map(root, "", sections)) throw ConfigInvalid(errors);
+  // A top-level section, required as kConfigSections says.
+  const auto section = [&](std::string_view key) {
+    const auto* s = std::find_if(kConfigSections.begin(), kConfigSections.end(),
+                                 [&](const ConfigSection& c) { return c.key == key; });
+    return r.child(root, "", std::string(key), s != kConfigSections.end() && s->required);
+  };
+
+  if (const auto cell = section("cell"); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder"})) {
+    r.text(*cell, "cell", "name", cfg.name);
+    // A path resolved against the config file's folder; `folder` must exist.
+    const auto path_in = [&](const char* key, std::string& out, const auto& folder_of) {
+      std::string raw;
+      r.text(*cell, "cell", key, raw, false, 4096);
+      if (raw.empty()) return;
+      std::filesystem::path p(raw);
+      if (p.is_relative()) p = std::filesystem::path(path).parent_path() / p;
+      p = p.lexically_normal();
+      const std::filesystem::path folder = folder_of(p);
+      std::error_code ec;
+      if (!std::filesystem::is_directory(folder, ec))
+        r.error((*cell)[key], std::string("cell.") + key, "folder '" + folder.string() + "' does not exist");
+      out = p.string();
+    };
+    path_in("results_file", cfg.results_file, [](const std::filesystem::path& p) { return p.parent_path(); });
+    path_in("record_folder", cfg.record_folder, [](const std::filesystem::path& p) { return p; });
+  }
+  std::vector<YAML::Mark> task_marks;
+  if (const auto e = section("executive")) read_executive(r, *e, known_tasks, cfg, task_marks);
+  if (const auto w = section("watchdog")) read_watchdog(r, *w, cfg.watchdog);
+  if (const auto s = section("safe_stop"); s && r.map(*s, "safe_stop", {"arm", "plc_fault_line", "rearm"})) {
+    r.choice(*s, "safe_stop", "arm", cfg.safe_stop.arm, {{"hold", ArmSafeAction::kHold}, {"home", ArmSafeAction::kHome}});
+    r.choice(*s, "safe_stop", "rearm", cfg.safe_stop.rearm,
+             {{"cycle_enable", RearmConfig::kCycleEnable}, {"never", RearmConfig::kNever}}, false);
+    r.boolean(*s, "safe_stop", "plc_fault_line", cfg.safe_stop.plc_fault_line);
+  }
+  if (const auto sp = section("spray")) read_params(r, *sp, "spray", cfg.spray);
+  if (const auto d = section("devices"); d && r.map(*d, "devices", {"gpio", "arm", "cameras"})) {
+    if (const auto g = r.child(*d, "devices", "gpio", true)) read_gpio(r, *g, cfg.gpio);
+    if (const auto a = r.child(*d, "devices", "arm", true)) read_arm(r, *a, cfg.arm);
+    if (const auto c = r.child(*d, "devices", "cameras", true)) read_cameras(r, *c, cfg.cameras);
+  }
+  if (const auto c = section("calibration")) read_calibration(r, *c, cfg);
+  if (const auto p = section("panel_types")) read_panel_types(r, *p, cfg);
+  if (const auto v = section("vision")) read_params(r, *v, "vision", cfg.vision);
+  if (const auto m = section("marking")) read_params(r, *m, "marking", cfg.marking);
+  if (const auto b = section("base_calibration")) read_base_calibration(r, *b, cfg.base_calibration);
+
+  // Simulated devices are advanced by the sim_world task: one without the other is a
+  // configuration that cannot run.
+  // yaml-cpp throws when a scalar is indexed or a missing key's node is asked its type:
+  // every level is checked to be defined and a map first (both found by the fuzzer).
+  const auto is_map = [](const YAML::Node& n) { return n.IsDefined() && n.IsMap(); };
+  const YAML::Node& const_root = root;
+  const YAML::Node executive = const_root["executive"];
+  if (const YAML::Node tasks = is_map(executive) ? executive["tasks"] : YAML::Node(); is_map(tasks)) {
+    // The table's declarations: which tasks must be there, which go with simulated
+    // devices, which need others, and that heavy work has a lane of its own.
+    const bool simulated = cfg.arm.transport == ArmTransport::kSimulated;
+    for (const auto& d : known_tasks) {
+      const std::string name(d.name);
+      const bool present = tasks[name].IsDefined();
+      if (d.presence == TaskPresence::kRequired && !present)
+        r.error(tasks, "executive.tasks", "the " + name + " task must be in the table (it " + std::string(d.doc) + ")");
+      if (d.presence == TaskPresence::kWithSimulatedDevices && simulated && !present)
+        r.error(tasks, "executive.tasks", "devices.arm.transport is simulated: the " + name + " task must be in the table");
+      if (d.presence == TaskPresence::kWithSimulatedDevices && !simulated && present)
+        r.error(tasks[name], "executive.tasks." + name, "no device is simulated: remove " + name);
+      if (!present) continue;
+      for (const auto& need : d.needs)
+        if (!need.task.empty() && !tasks[std::string(need.task)].IsDefined())
+          r.error(tasks[name], "executive.tasks." + name,
+                  "the " + name + " task needs the " + std::string(need.task) + " task in the table" +
+                      (need.why.empty() ? std::string() : " (" + std::string(need.why) + ")"));
+    }
+    for (const auto& heavy : cfg.executive.tasks) {
+      const TaskDecl* hd = find_task(known_tasks, heavy.name);
+      if (!hd || hd->kind != TaskKind::kHeavy) continue;
+      for (const auto& other : cfg.executive.tasks) {
+        const TaskDecl* od = find_task(known_tasks, other.name);
+        if (od && od->kind == TaskKind::kControl && other.lane == heavy.lane) {
+          r.error(tasks[heavy.name]["lane"], "executive.tasks." + heavy.name + ".lane",
+                  "the " + heavy.name + " task does per-frame work: it needs a lane without control tasks (" + other.name +
+                      " is on this one)");
+          break;
+        }
+      }
+    }
+    const bool has_vision = tasks["vision"].IsDefined();
+    if (has_vision && cfg.calibration.stereo.empty())
+      r.error(tasks["vision"], "executive.tasks.vision", "the vision task needs calibration.stereo");
+    if (const YAML::Node trig = tasks["camera_trigger"]; trig.IsDefined()) {
+      if (cfg.cameras.trigger != CameraTrigger::kHardware)
+        r.error(trig, "executive.tasks.camera_trigger",
+                "devices.cameras.trigger is software: the cameras are not on the trigger line; remove camera_trigger or set trigger: hardware");
+      // One rising edge every other run: the task runs at twice the frame rate.
+      for (const auto& t : cfg.executive.tasks)
+        if (t.name == "camera_trigger" && cfg.cameras.fps > 0) {
+          const double period_us = static_cast<double>(t.period_ticks) * static_cast<double>(cfg.executive.tick) / 1e3;
+          const double want_us = 1e6 / (2.0 * cfg.cameras.fps);
+          if (std::abs(period_us - want_us) > 0.02 * want_us) {
+            const double tick_us = static_cast<double>(cfg.executive.tick) / 1e3;
+            char message[240];
+            std::snprintf(message, sizeof message,
+                          "period_us %.0f gives %.2f frames/s (a rising edge every other run); devices.cameras.fps is %g: "
+                          "set period_us to %.0f (the multiple of the %.0f us tick nearest %.0f)",
+                          period_us, 1e6 / (2.0 * period_us), cfg.cameras.fps, std::max(1.0, std::round(want_us / tick_us)) * tick_us,
+                          tick_us, want_us);
+            r.error(trig, "executive.tasks.camera_trigger", message);
+          }
+        }
+    }
+    const YAML::Node types = const_root["panel_types"];
+    const auto file_given = [&](const std::string& name) {
+      return is_map(types) && is_map(types[name]) && types[name]["file"].IsDefined();
+    };
+    if (has_vision)
+      for (const auto& panel : cfg.panel_types)
+        if (panel.file.empty() && !file_given(panel.name))
+          r.error(tasks["vision"], "executive.tasks.vision",
+                  "panel type '" + panel.name + "' has no file (panel_types." + panel.name + ".file, made by markcell select-mfs)");
+  }
+  if (!errors.empty()) throw ConfigInvalid(std::move(errors));
+  // The loader has checked everything the executive checks; this is the last line of
+  // defence and must agree.
+  control::validate(cfg.executive);
+  return cfg;
+}
+
+}  // namespace markcell::host

@@ -1,0 +1,47 @@
+#include "markcell/rig/inspection.hpp"
+
+#include <cmath>
+#include <random>
+
+#include "markcell/common/geometry.hpp"
+
+namespace markcell::rig {
+
+InspectionRecord simulate_inspection(const std::string& panel_id, const rig::PanelShape& panel,
+                                     const std::vector<DefectSpec>& defects, const vision::StereoCalibration& scanner,
+                                     const Eigen::Isometry3d& X_SL_Panel, const InspectionNoise& noise, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> pixel(0.0, noise.pixel_sigma), depth(0.0, noise.depth_sigma);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  InspectionRecord r;
+  r.panel_id = panel_id;
+  r.panel_type = panel.name;
+  // CamL_SL is the scanner's frame: its left camera is the origin, the right one sits
+  // at X_CamR_CamL of the scanner's calibration.
+  const Eigen::Isometry3d X_CamR_SL = scanner.X_CamR_CamL;
+  geometry::ProjectionMatrix P_left = geometry::ProjectionMatrix::Zero(), P_right;
+  P_left.leftCols<3>() = scanner.left.K;
+  P_right = scanner.right.K * X_CamR_SL.matrix().topRows<3>();
+  for (const auto& mf : panel.macro_features) {
+    const Eigen::Vector3d p_SL = X_SL_Panel * mf;
+    const Eigen::Vector2d xl = rig::project_point(scanner.left, p_SL) + Eigen::Vector2d(pixel(rng), pixel(rng));
+    const Eigen::Vector2d xr = rig::project_point(scanner.right, X_CamR_SL * p_SL) + Eigen::Vector2d(pixel(rng), pixel(rng));
+    r.macro_features_SL.push_back(geometry::triangulate(P_left, P_right, xl, xr));
+  }
+  for (const auto& d : defects) {
+    InspectionDefect out;
+    out.id = d.id;
+    for (int i = 0; i < noise.points_per_defect; ++i) {
+      // Uniform over the disc around the centre, on the surface, pressed in by the ding.
+      const double rho = noise.ding_radius * std::sqrt(unit(rng)), phi = 2 * M_PI * unit(rng);
+      const double x = d.x + rho * std::cos(phi), y = d.y + rho * std::sin(phi);
+      const double dent = noise.ding_depth * std::exp(-0.5 * (rho * rho) / (0.4 * noise.ding_radius * 0.4 * noise.ding_radius));
+      const Eigen::Vector3d p_Panel = panel.surface_point(x, y) - panel.normal(x) * (dent + depth(rng));
+      out.points_SL.push_back(X_SL_Panel * p_Panel);
+    }
+    r.defects.push_back(out);
+  }
+  return r;
+}
+
+}  // namespace markcell::rig

@@ -1,0 +1,364 @@
+#include "markcell/rig/replay.hpp"
+#include "markcell/host/stop_signal.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <stdexcept>
+#include <thread>
+
+#include "markcell/common/geometry.hpp"
+#include "markcell/control/tool_pose.hpp"
+#include "markcell/drivers/gpiod_lines.hpp"
+#include "markcell/host/inspection_record.hpp"
+#include "markcell/rig/hil_peer.hpp"
+#include "markcell/vision/frame_source.hpp"
+#include "markcell/vision/recording.hpp"
+#include "markcell/rig/render.hpp"
+
+namespace markcell::rig {
+
+// The rig runs the service's cell: its configuration, its cell and their helpers.
+using namespace markcell::host;
+
+namespace {
+
+// The recorded truth between frames: translation linear, rotation by slerp.
+class TruthTrack {
+ public:
+  TruthTrack(const std::vector<vision::TruthPose>& truth, const vision::RecordingFrameSource& source) {
+    for (const auto& t : truth) poses_.push_back({source.to_cell_time(t.time), t.X_CamR_Panel});
+    std::sort(poses_.begin(), poses_.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  }
+  bool empty() const { return poses_.empty(); }
+  Eigen::Isometry3d at(Nanos t) const {
+    if (t <= poses_.front().first) return poses_.front().second;
+    if (t >= poses_.back().first) return poses_.back().second;
+    const auto it = std::lower_bound(poses_.begin(), poses_.end(), t, [](const auto& p, Nanos v) { return p.first < v; });
+    const auto& b = *it;
+    const auto& a = *(it - 1);
+    const double f = static_cast<double>(t - a.first) / static_cast<double>(b.first - a.first);
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() = Eigen::Quaterniond(a.second.linear()).slerp(f, Eigen::Quaterniond(b.second.linear())).toRotationMatrix();
+    X.translation() = (1 - f) * a.second.translation() + f * b.second.translation();
+    return X;
+  }
+
+ private:
+  std::vector<std::pair<Nanos, Eigen::Isometry3d>> poses_;
+};
+
+bool has_task(const CellConfig& c, const std::string& name) {
+  return std::any_of(c.executive.tasks.begin(), c.executive.tasks.end(), [&](const auto& t) { return t.name == name; });
+}
+
+// A real-device replay's checks: the configuration must name real devices for the peer to
+// stand behind.
+void check_real_devices(const CellConfig& c, const ReplayOptions& options) {
+  if (c.gpio.simulated)
+    throw std::runtime_error(c.file + ": devices.gpio.simulated is true: a replay on real devices (--gpio-sim) needs the "
+                                      "libgpiod chip the gpio-sim lines are on");
+  if (c.arm.transport == ArmTransport::kSimulated)
+    throw std::runtime_error(c.file + ": devices.arm.transport must be can or serial for a replay on real devices "
+                                      "(--gpio-sim): the rig's simulated arm stands behind the cell's real arm link");
+  if (c.arm.transport == ArmTransport::kSerial && options.arm_serial_peer.empty())
+    throw std::runtime_error(c.file + ": devices.arm.transport is serial: a replay on real devices needs the serial "
+                                      "line's other end for the rig's arm (--arm-serial-peer DEVICE)");
+  if (c.arm.transport != ArmTransport::kSerial && !options.arm_serial_peer.empty())
+    throw std::runtime_error(c.file + ": --arm-serial-peer is given but devices.arm.transport is not serial");
+}
+
+PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
+                      control::PredictorKind kind, const ReplayOptions& options, const vision::Recording& rec) {
+  const std::string predictor(control::to_string(kind));
+  const bool real = !options.gpio_sim.empty();
+  CellConfig cfg = base;
+  cfg.cameras.source = CameraSource::kRecording;
+  cfg.cameras.recording = recording;
+  cfg.marking.predictor.kind = kind;
+  cfg.watchdog.systemd = false;  // no service manager in a rig run
+  cfg.watchdog.device = false;
+  if (!real) {  // (a real-device run's configuration was checked before the first run)
+    cfg.gpio.simulated = true;
+    cfg.arm.transport = ArmTransport::kSimulated;
+    cfg.executive.lock_memory = false;
+    for (auto& lane : cfg.executive.lanes) lane.priority = 0, lane.core = -1;  // simulated time needs no privileges
+  }
+
+  Cell cell(cfg, real ? ClockKind::kReal : ClockKind::kSimulated);
+  std::unique_ptr<HilPeer> peer;
+  if (real) {
+    auto* lines = dynamic_cast<drivers::GpiodLines*>(&cell.gpio());
+    if (lines == nullptr) throw std::logic_error("a real-device replay without the libgpiod driver");
+    std::array<unsigned, kLineRoleCount> offsets{};
+    for (std::size_t i = 0; i < kLineRoleCount; ++i) offsets[i] = lines->offset(static_cast<int>(i));
+    int priority = 0;  // the world runs above every lane of the cell, when they have priorities
+    for (const auto& lane : cfg.executive.lanes) priority = std::max(priority, lane.priority > 0 ? std::min(lane.priority + 1, 99) : 0);
+    peer = std::make_unique<HilPeer>(cfg, options.gpio_sim, offsets, priority, options.arm_serial_peer);
+    peer->start();
+  } else {
+    cell.enable_command_log(std::size_t{1} << 18);
+  }
+  // The configured source replays the recording; the rig draws its arm in front of it.
+  std::unique_ptr<vision::FrameSource> configured = cell.release_frame_source();
+  auto& source = static_cast<vision::RecordingFrameSource&>(*configured);
+  ArmOverlaySource* overlay = nullptr;
+  if (!real && options.draw_arm && !rec.truth().empty()) {
+    auto wrapped = std::make_unique<ArmOverlaySource>(std::move(configured), cell.stereo_rig()->calibration(),
+                                                      cell.X_Base_CamR().inverse(), *cell.sim_tool_poses());
+    overlay = wrapped.get();
+    configured = std::move(wrapped);
+  }
+  cell.use_frame_source(std::move(configured));
+  const auto drive = [&](LineRole line, bool level) {
+    if (peer) peer->drive(line, level);
+    else cell.drive_sim_input(line, level);
+  };
+  control::SimClock* clock = cell.sim_clock();
+  const auto now = [&] { return clock != nullptr ? clock->global_now() : cell.clock().now(0); };
+  const Nanos start = now();  // the PLC script's and the command log's zero (0 in simulated time)
+  cell.start();
+  drive(LineRole::kPlcPanelPresent, true);
+  control::MarkingSequence& marking = *cell.marking();
+  marking.offer_job(job);
+  const Nanos end = source.end_time();
+  const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
+  auto progress = [&](Nanos t) {
+    if (!options.progress) return;
+    if (real) {  // the lanes are running: only what is safe to read from here
+      std::fprintf(stderr, "%s[%s] t=%5.1f/%.1f s  real time, real devices  panels done %llu%s", tty ? "\r" : "",
+                   predictor.c_str(), to_seconds(t - start), to_seconds(end - start),
+                   static_cast<unsigned long long>(marking.panels_completed()), tty ? "   " : "\n");
+      return;
+    }
+    const auto& p = marking.current();
+    int sprayed = 0;
+    for (int i = 0; i < p.defect_count; ++i) sprayed += p.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
+    std::fprintf(stderr, "%s[%s] t=%5.1f/%.1f s  %-12s sprayed %d/%d  frames %llu%s", tty ? "\r" : "", predictor.c_str(),
+                 to_seconds(t), to_seconds(end), std::string(control::to_string(marking.state())).c_str(), sprayed,
+                 p.defect_count, static_cast<unsigned long long>(cell.vision_stats()->frames), tty ? "   " : "\n");
+  };
+  sim::PlcScript script(options.plc_events);
+  int stopped_by = 0;
+  const auto stop_asked = [&] {
+    if (stopped_by == 0 && options.stop != nullptr) stopped_by = options.stop->load(std::memory_order_acquire);
+    return stopped_by != 0;
+  };
+  // Bounded steps, so that a stop asked for is seen within 100 ms of simulated time (a few
+  // hundred ms of computing at most) or 5 ms of real time.
+  const auto run_until = [&](Nanos t) {
+    if (clock == nullptr) {  // real time: the lanes run on their own, the PLC is polled here
+      for (Nanos n = now(); n < t && !stop_asked(); n = now())
+        std::this_thread::sleep_for(std::chrono::nanoseconds(std::min<Nanos>(t - n, millis(5))));
+      return;
+    }
+    for (Nanos n = clock->global_now(); n < t && !stop_asked(); n = clock->global_now())
+      if (clock->run_until(std::min(t, n + millis(100))) == control::SimClock::RunResult::kWedged)
+        throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock->global_now())) + " s");
+  };
+  // Time runs to `t`, stopping at each scripted PLC event on the way (script times are
+  // from the start).
+  const auto apply = [&](const sim::PlcEvent& ev) { drive(ev.line, ev.level); };
+  auto run_to = [&](Nanos t) {
+    while (!stop_asked()) {
+      const Nanos n = now();
+      const Nanos wait = script.until_next(n - start, t - n + 1);  // past t when none is left
+      if (n + wait > t) break;
+      run_until(n + std::max<Nanos>(wait, 1));
+      script.apply_due(now() - start, apply);
+    }
+    run_until(t);
+  };
+  script.apply_due(0, apply);
+  for (Nanos t = start + seconds(1); marking.panels_completed() == 0 && !stop_asked(); t += seconds(1)) {
+    run_to(std::min(t, end));
+    progress(now());
+    if (t >= end) break;
+  }
+  // The panel leaves the station with the recording's end (or with the stop).
+  drive(LineRole::kPlcPanelPresent, false);
+  for (Nanos t = end + seconds(1); marking.panels_completed() == 0 && t <= end + options.tail && !stop_asked(); t += seconds(1)) {
+    run_to(t);
+    progress(t);
+  }
+  const Nanos stopped_at = now() - start;
+  if (options.progress && tty) std::fprintf(stderr, "\n");
+  cell.shutdown(control::FaultCode::kShutdown, "rig", "replay finished");
+  if (peer) peer->stop();
+
+  PredictorRun run;
+  run.predictor = predictor;
+  run.stopped_by = stopped_by;
+  run.stopped_at = stopped_by != 0 ? stopped_at : 0;
+  run.panel = marking.current();
+  run.vision = *cell.vision_stats();
+  if (overlay != nullptr) run.arm = overlay->stats();
+  run.frames_skipped = source.skipped();
+  run.timing_report = cell.executive().timing_report();
+  run.command_log = peer ? peer->command_log_text(start) : cell.command_log_text();
+  if (peer) {
+    run.peer_late_ticks = peer->late_ticks();
+    if (!peer->error().empty()) run.faults.push_back("rig peer: " + peer->error());
+    if (peer->priority_refused()) run.faults.push_back("rig peer: SCHED_FIFO refused, its thread ran at normal priority");
+  }
+  for (std::size_t i = 0; i < cell.executive().spec().tasks.size(); ++i) {
+    run.deadline_misses += cell.executive().task_stats(static_cast<int>(i)).deadline_misses.load();
+    run.overruns += cell.executive().task_stats(static_cast<int>(i)).overruns.load();
+  }
+  control::Fault f;
+  while (cell.faults().pop(f)) {
+    char line[256];
+    std::snprintf(line, sizeof line, "t=%.3f s %s %s: %s", to_seconds(f.time), std::string(control::to_string(f.code)).c_str(),
+                  f.source.c_str(), f.detail.c_str());
+    run.faults.emplace_back(line);
+  }
+  for (std::size_t i = 0; i < marking.prediction_samples(); ++i) run.samples.push_back(marking.prediction_sample(i));
+  for (std::size_t i = 0; i < marking.panel_frames(); ++i) run.panel_frames.push_back(marking.panel_frame(i));
+  int sprayed = 0;
+  Nanos first = -1;
+  for (int i = 0; i < run.panel.defect_count; ++i) {
+    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
+    sprayed += d.sprayed ? 1 : 0;
+    if (d.approach_start >= 0 && (first < 0 || d.approach_start < first)) first = d.approach_start;
+  }
+  if (sprayed > 0 && first >= 0) run.seconds_per_defect = to_seconds(run.panel.finished - first) / sprayed;
+
+  // Scoring against the recording's truth.
+  if (!rec.manifest().has_truth || !rec.manifest().has_defects) return run;
+  const TruthTrack truth(rec.truth(), source);
+  if (truth.empty()) return run;
+  const rig::PanelShape panel = rig::panel_shape(rec.manifest().panel_type);
+  std::vector<TrueDefect> defects;
+  for (const auto& d : rec.defects()) defects.push_back({d.id, d.p_Panel});
+  auto true_centre = [&](int id, Nanos t) -> std::optional<Eigen::Vector3d> {
+    for (const auto& d : defects)
+      if (d.id == id) return truth.at(t) * d.p_Panel;
+    return std::nullopt;
+  };
+  std::vector<Spray> sprays;
+  const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
+  // What the simulated world saw at the nozzle: the peer's behind real devices, else the cell's.
+  if (const sim::NozzleWitness* nozzle = peer ? &peer->nozzle() : cell.sim_nozzle(); nozzle != nullptr) {
+    if (nozzle->total() > nozzle->kept())
+      run.faults.push_back("rig: the oldest " + std::to_string(nozzle->total() - nozzle->kept()) + " of " +
+                           std::to_string(nozzle->total()) + " valve openings not scored (the newest " +
+                           std::to_string(nozzle->kept()) + " kept)");
+    for (std::size_t i = nozzle->total() - nozzle->kept(); i < nozzle->total(); ++i)
+      sprays.push_back({nozzle->spray(i).time, X_CamR_Base * control::to_isometry(nozzle->spray(i).tool)});
+  }
+  std::vector<SkippedDefect> skipped;
+  for (int i = 0; i < run.panel.defect_count; ++i) {
+    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
+    if (d.skipped != control::SkipReason::kNone) skipped.push_back({d.id, std::string(control::to_string(d.skipped))});
+  }
+  run.score = score_sprays(panel, [&](Nanos t) { return truth.at(t); }, defects, sprays, skipped, options.radius);
+  run.scored = true;
+  for (int i = 0; i < run.panel.defect_count; ++i) {
+    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
+    if (!d.sprayed) continue;
+    if (const auto c = true_centre(d.id, d.spray_requested)) {
+      const Eigen::Vector3d e = (d.predicted_centre_CamR - *c).cwiseAbs();
+      run.prediction_max_abs = run.prediction_max_abs ? run.prediction_max_abs->cwiseMax(e) : e;
+      run.prediction_per_defect.push_back({d.id, e});
+    }
+  }
+  // Where each panel frame P truly lies: the rigid fit of its set-up MFs' true positions
+  // (CamR at that frame) onto where P put them, X_P_CamRref; once per P.
+  std::vector<std::pair<Nanos, Eigen::Isometry3d>> placements;
+  for (const auto& frame : run.panel_frames) {
+    std::vector<Eigen::Vector3d> a, b;
+    const auto n = std::min(static_cast<std::size_t>(std::max(frame.count, 0)), panel.macro_features.size());
+    for (std::size_t k = 0; k < n; ++k)
+      if (frame.found[k]) {
+        a.push_back(truth.at(frame.reference_time) * panel.macro_features[k]);
+        b.push_back(frame.mfs_P[k]);
+      }
+    // Robust: a search can take another corner for an MF (a person in front); the
+    // inter-calibration leaves it out, and so does this.
+    std::array<bool, msg::kMaxMacroFeatures> inlier{};
+    geometry::RobustFitOptions robust;
+    robust.inlier_threshold = 0.01;
+    const geometry::RigidFit fit = geometry::fit_rigid_robust(a, b, robust, std::span(inlier.data(), a.size()));
+    placements.emplace_back(frame.reference_time, fit.valid ? fit.X_B_A : Eigen::Isometry3d::Identity());
+  }
+  auto X_P_CamRref = [&](Nanos reference_time) {  // identity for a P not logged
+    for (const auto& [time, X] : placements)
+      if (time == reference_time) return X;
+    return Eigen::Isometry3d(Eigen::Isometry3d::Identity());
+  };
+  double sq_pose = 0, sq_defect = 0;
+  for (const auto& s : run.samples) {
+    const auto c = true_centre(s.defect, s.time);
+    run.truth_samples.push_back({s.time, c ? *c : Eigen::Vector3d::Zero()});
+    run.one_frame_max_abs = run.one_frame_max_abs.cwiseMax((s.predicted_CamR - s.estimated_CamR).cwiseAbs());
+    if (!c) continue;
+    // P is (about) CamR at the frame that set it up, placed on the panel as above: the truth
+    // moves the defect's centre in P from there to now.
+    const Eigen::Isometry3d motion = truth.at(s.time) * truth.at(s.reference_time).inverse();
+    const Eigen::Vector3d moved = motion * X_P_CamRref(s.reference_time).inverse() * s.centre_P;
+    const double e = (s.estimated_CamR - moved).norm(), d = (s.estimated_CamR - *c).norm();
+    run.pose_error_setup_frame_max = std::max(run.pose_error_setup_frame_max, (s.estimated_CamR - motion * s.centre_P).norm());
+    run.pose_error_max = std::max(run.pose_error_max, e);
+    run.defect_error_max = std::max(run.defect_error_max, d);
+    sq_pose += e * e;
+    sq_defect += d * d;
+    ++run.pose_samples;
+    if (s.inliers < s.count) {
+      run.pose_error_missing_max = std::max(run.pose_error_missing_max, e);
+      ++run.pose_samples_missing;
+    }
+  }
+  if (run.pose_samples > 0) {
+    run.pose_error_rms = std::sqrt(sq_pose / run.pose_samples);
+    run.defect_error_rms = std::sqrt(sq_defect / run.pose_samples);
+  }
+  return run;
+}
+
+}  // namespace
+
+ReplayReport replay_recording(const CellConfig& config, const std::string& recording, const ReplayOptions& options) {
+  if (!has_task(config, "vision") || !has_task(config, "marking"))
+    throw std::runtime_error(config.file + ": executive.tasks needs the vision and marking tasks for a rig run");
+  const vision::Recording rec = vision::Recording::open(recording);
+  const std::string inspection = (std::filesystem::path(recording) / "inspection.yaml").string();
+  if (!std::filesystem::exists(inspection))
+    throw std::runtime_error(inspection + ": missing: a rig run needs the inspection station's record of the panel");
+  const control::PanelJob job = read_inspection_record(inspection, config.panel_types);
+  if (job.panel_type.view() != rec.manifest().panel_type)
+    throw std::runtime_error(inspection + ": panel_type '" + std::string(job.panel_type.view()) + "' but the recording is of '" +
+                             rec.manifest().panel_type + "'");
+  ReplayReport report;
+  report.scenario = rec.manifest().scenario.empty() ? std::filesystem::path(recording).filename().string() : rec.manifest().scenario;
+  report.recording = recording;
+  report.panel_type = rec.manifest().panel_type;
+  report.index_problems = rec.index_problems();
+  if (!options.gpio_sim.empty()) {
+    check_real_devices(config, options);
+    report.devices = "real: gpio chip " + config.gpio.chip +
+                     (config.arm.transport == ArmTransport::kCan ? ", CAN " + config.arm.can.interface
+                                                                 : ", serial " + config.arm.serial.device) +
+                     "; rig peer through gpio-sim " + options.gpio_sim +
+                     (options.arm_serial_peer.empty() ? "" : " and serial " + options.arm_serial_peer);
+  }
+  using control::PredictorKind;
+  std::vector<PredictorKind> kinds{config.marking.predictor.kind};
+  if (options.both_predictors)
+    kinds.push_back(config.marking.predictor.kind == PredictorKind::kKalman ? PredictorKind::kTwoFrame : PredictorKind::kKalman);
+  for (const auto& k : kinds) {
+    report.runs.push_back(run_once(config, recording, job, k, options, rec));
+    const PredictorRun& r = report.runs.back();
+    if (r.stopped_by != 0) {  // the other predictor's run is not begun
+      char at[64];
+      std::snprintf(at, sizeof at, " at t=%.3f s of the ", to_seconds(r.stopped_at));
+      report.stopped = signal_name(r.stopped_by) + at + r.predictor + " run";
+      break;
+    }
+  }
+  return report;
+}
+
+}  // namespace markcell::rig

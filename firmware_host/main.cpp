@@ -21,6 +21,7 @@
 #include "markcell/host/record_folder.hpp"
 #include "markcell/sim/plc_script.hpp"
 #include "markcell/host/results_file.hpp"
+#include "markcell/host/service_loop.hpp"
 #include "markcell/tools/select_mfs_window.hpp"
 #include "markcell/rig/replay.hpp"
 #include "markcell/host/stop_signal.hpp"
@@ -39,8 +40,6 @@ namespace {
 using namespace markcell;
 using namespace markcell::host;
 
-constexpr int kExitRuntime = 1;
-constexpr int kExitConfig = 2;
 
 // SIGTERM and SIGINT, taken synchronously by the main thread with sigtimedwait. They are
 // blocked first thing in main(): before any lane exists (every thread inherits the
@@ -65,17 +64,6 @@ int check_config_command(const std::string& file) {
   return kExitConfig;
 }
 
-void print_faults(control::FaultLog& log) {
-  control::Fault f;
-  int shown = 0;
-  while (log.pop(f)) {
-    if (shown++ == 0) std::cout << "\nfaults:\n";
-    std::printf("  t=%.6f s  %-14s %-16s %s\n", to_seconds(f.time), std::string(control::to_string(f.code)).c_str(),
-                f.source.c_str(), f.detail.c_str());
-  }
-  if (log.dropped() > 0) std::printf("  (%llu faults dropped: the log was full)\n", static_cast<unsigned long long>(log.dropped()));
-}
-
 std::optional<CellConfig> load_or_report(const std::string& file) {
   try {
     return load_config(file, task_catalog());
@@ -83,20 +71,6 @@ std::optional<CellConfig> load_or_report(const std::string& file) {
     for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
     std::cerr << e.errors().size() << " error(s) in " << file << "\n";
     return std::nullopt;
-  }
-}
-
-// Every panel whose record was accepted but whose result never came (the process was
-// killed, the power cut, or it stopped before the panel arrived) gets a fault result
-// now, so no accepted panel is without one; the ids seen are duplicates from now on.
-void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records) {
-  const ResultsFile::History h = results.history();
-  if (records != nullptr)
-    for (const auto& id : h.panel_ids) records->remember(id);
-  for (const auto& id : h.unfinished) {
-    results.append(ResultsFile::interrupted_json(cell, id));
-    std::fprintf(stderr, "<3>markcell: panel=%s result=fault reason=\"interrupted: markcell stopped after accepting its record and before its result\"\n",
-                 escape_log(id).c_str());
   }
 }
 
@@ -118,215 +92,18 @@ int run_command(const std::string& file, const std::string& clock_name, double s
       return kExitConfig;
     }
   }
-  const bool simulated = clock_name == "sim";
-  sigset_t signals = stop_signals();
-
-  Cell cell(config, simulated ? ClockKind::kSimulated : ClockKind::kReal);
-  // The results file and the record folder are opened before anything moves: a cell that
-  // could not record its results must not start.
-  std::unique_ptr<ResultsFile> results;
-  std::unique_ptr<RecordFolder> records;
+  const sigset_t signals = stop_signals();
+  const ClockKind clock = clock_name == "sim" ? ClockKind::kSimulated : ClockKind::kReal;
+  Cell cell(config, clock);
+  std::unique_ptr<ServiceLoop> service;
   try {
-    if (!config.results_file.empty() && cell.marking() != nullptr) results = std::make_unique<ResultsFile>(config.results_file);
-    if (!config.record_folder.empty() && cell.marking() != nullptr)
-      records = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
-    if (results) close_interrupted(*results, config.name, records.get());
-    cell.start();
+    service = std::make_unique<ServiceLoop>(config, cell, ServiceOptions{clock, seconds, std::move(plc_events)});
+    service->start();
   } catch (const std::exception& e) {
     std::cerr << "markcell: start-up failed: " << e.what() << "\n";
     return kExitRuntime;
   }
-  for (const auto& w : cell.privilege_warnings()) std::cerr << "<4>markcell: warning: " << w << "\n";
-  std::fprintf(stderr, "<6>markcell: cell '%s' running on the %s clock", config.name.c_str(), simulated ? "simulated" : "real");
-  if (seconds > 0) std::fprintf(stderr, " for %g s", seconds);
-  std::fprintf(stderr, "\n");
-
-  // Each finished panel: its result appended and synced, then acknowledged so that the
-  // marking sequence tells the PLC; one journald line per panel.
-  std::uint64_t written = 0;
-  const auto collect = [&] {
-    control::MarkingSequence* m = cell.marking();
-    if (m == nullptr || m->panels_completed() == written) return;
-    m->results().update();
-    const control::PanelResult& r = m->results().read();
-    bool late = false;  // the PLC heard fault before the line reached the disk
-    if (results) {
-      try {
-        results->append(ResultsFile::to_json(r, config.name));
-        if (!m->acknowledge_result(r.serial)) {
-          late = true;
-          results->append(ResultsFile::late_json(config.name, r.serial, std::string(r.panel_id.view())));
-        }
-      } catch (const std::exception& e) {
-        late = true;  // never acknowledged: the sequence's wait runs out, the PLC hears fault
-        std::fprintf(stderr, "<3>markcell: %s (the PLC gets fault)\n", escape_log(e.what()).c_str());
-      }
-    }
-    int sprayed = 0, skipped = 0;
-    for (int i = 0; i < r.defect_count; ++i) {
-      sprayed += r.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
-      skipped += r.defects[static_cast<std::size_t>(i)].skipped != control::SkipReason::kNone ? 1 : 0;
-    }
-    const bool fault = r.fault || late;
-    std::fprintf(stderr, "%smarkcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"\n", fault ? "<3>" : "<6>",
-                 escape_log(r.panel_id.view()).c_str(), fault ? "fault" : "done", sprayed, skipped,
-                 late ? "results file not written in time" : escape_log(r.reason.view()).c_str());
-    written = r.serial;
-  };
-
-  // Every fault as it is recorded: one journald line each (the stop's own are listed at the end).
-  const auto log_faults = [&] {
-    control::Fault f;
-    while (cell.faults().pop(f))
-      std::fprintf(stderr, "<3>markcell: fault t=%.6f code=%s source=%s detail=\"%s\"\n", to_seconds(f.time),
-                   std::string(control::to_string(f.code)).c_str(), escape_log(f.source.view()).c_str(),
-                   escape_log(f.detail.view()).c_str());
-  };
-
-  // Inspection records from the drop folder, one at a time into the marking sequence; a
-  // rejected one is logged and recorded in the results file with its reason.
-  const auto take_records = [&](Nanos now) {
-    if (!records) return;
-    std::vector<RecordEvent> events;
-    try {
-      events = records->poll([&](const control::PanelJob& job) {
-        // The accepted line is on disk before the panel can start, so a crash from here
-        // on leaves a trace the next start answers (close_interrupted).
-        if (!cell.marking()->can_offer()) return false;
-        if (results) results->append(ResultsFile::accepted_json(config.name, records->offering(), std::string(job.panel_id.view())));
-        return cell.marking()->offer_job(job);
-      }, now);
-    } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
-      std::fprintf(stderr, "<3>markcell: record folder %s: %s\n", escape_log(records->folder()).c_str(), escape_log(e.what()).c_str());
-      return;
-    }
-    for (const RecordEvent& ev : events) {
-      if (ev.kind == RecordEvent::Kind::kAccepted) {
-        std::fprintf(stderr, "<6>markcell: record panel=%s accepted (%s)\n", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str());
-        continue;
-      }
-      std::fprintf(stderr, "<3>markcell: record rejected: %s (moved to %s)\n", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str());
-      if (results) {
-        try {
-          results->append(ResultsFile::rejected_json(config.name, ev.file, ev.panel_id, ev.reason));
-        } catch (const std::exception& e) {
-          std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
-        }
-      }
-    }
-  };
-
-  // The scripted PLC: every event due by `elapsed` (since the start) applied, in order.
-  sim::PlcScript script(std::move(plc_events));
-  const auto apply_plc_events = [&](Nanos elapsed) {
-    script.apply_due(elapsed, [&](const sim::PlcEvent& ev) {
-      cell.drive_sim_input(ev.line, ev.level);
-      std::fprintf(stderr, "<6>markcell: plc-script t=%.3f s %s=%d\n", to_seconds(ev.at),
-                   std::string(to_string(ev.line)).c_str(), ev.level ? 1 : 0);
-    });
-  };
-  const auto next_event_after = [&](Nanos elapsed) { return script.until_next(elapsed, kNanosPerSecond); };
-
-  // The service's state in systemd's status line, and the exit on a fault of the cell
-  // itself: a stop the PLC caused waits for its re-arm (docs/safety.md); any other stop
-  // (a lane stall, an overrun, a device or task fault) ends the process with exit 1,
-  // so that systemd's Restart=on-failure brings the cell up anew.
-  std::string status_shown;
-  int exit_code = 0;
-  const auto watch_safety = [&] {
-    control::SafeStop& stop = cell.safe_stop();
-    std::string status;
-    if (stop.done()) {
-      const control::Fault& why = stop.reason();
-      status = "safe stop (" + std::string(control::to_string(why.code)) + ", " + why.source.c_str() + ": " + why.detail.c_str() +
-               ")" + (stop.internal_fault() ? ": exiting for a restart"
-                      : config.safe_stop.rearm == RearmConfig::kNever ? ": restart the service to re-arm"
-                      : stop.rearm_requested() ? ": re-arming, the arm going home"
-                                               : ": waiting for the e-stop's release, then a cycle-enable edge");
-    } else {
-      const control::MarkingSequence* m = cell.marking();
-      status = "running";
-      if (m != nullptr) status += ": marking " + std::string(control::to_string(m->state())) + ", " + std::to_string(m->panels_completed()) + " panel(s)";
-    }
-    if (status != status_shown) {
-      if (config.watchdog.systemd) cell.notifier().status(status);
-      if (stop.done() || status_shown.rfind("safe stop", 0) == 0)
-        std::fprintf(stderr, "%smarkcell: %s\n", stop.done() ? "<4>" : "<6>", escape_log(status).c_str());
-      status_shown = status;
-    }
-    return stop.done() && stop.internal_fault();
-  };
-
-  std::string stop_reason = "duration elapsed";
-  if (simulated) {
-    const Nanos start = cell.sim_clock()->global_now();
-    const Nanos end = start + static_cast<Nanos>(seconds * 1e9);
-    apply_plc_events(0);
-    for (Nanos t = start; t < end;) {
-      // Steps of 100 ms, cut at the script's events so each lands on its own time.
-      t = std::min({end, t + millis(100), t + std::max<Nanos>(1, next_event_after(t - start))});
-      if (cell.sim_clock()->run_until(t) == control::SimClock::RunResult::kWedged) {
-        stop_reason = "simulation wedged";
-        break;
-      }
-      apply_plc_events(t - start);
-      collect();
-      log_faults();
-      take_records(t);
-      if (watch_safety()) {
-        stop_reason = "a fault of the cell";
-        exit_code = kExitRuntime;
-        break;
-      }
-    }
-  } else {
-    const Nanos start = monotonic_now();
-    const Nanos end = seconds > 0 ? start + static_cast<Nanos>(seconds * 1e9) : 0;
-    for (;;) {
-      // Bounded wait: wakes at once on a signal, at least every second otherwise.
-      apply_plc_events(monotonic_now() - start);
-      collect();
-      log_faults();
-      take_records(monotonic_now());
-      if (watch_safety()) {
-        stop_reason = "a fault of the cell";
-        exit_code = kExitRuntime;
-        // A stalled lane may never finish its tick: the outputs are safe already (the
-        // safe stop drove them), the results are written; the process ends here.
-        if (cell.safe_stop().reason().code == control::FaultCode::kLaneStall) {
-          std::fprintf(stderr, "<3>markcell: stopped (lane stall: %s), exit 1 without waiting for the lanes\n",
-                       escape_log(cell.safe_stop().reason().detail.view()).c_str());
-          std::fflush(stderr);
-          std::_Exit(kExitRuntime);
-        }
-        break;
-      }
-      Nanos wait = seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
-      if (wait <= 0) break;
-      if (wait > millis(50)) wait = millis(50);  // results are written within 50 ms of a panel's end
-      wait = std::max<Nanos>(1, std::min(wait, next_event_after(monotonic_now() - start)));
-      const timespec ts = to_timespec(wait);
-      const int sig = sigtimedwait(&signals, nullptr, &ts);
-      if (sig == SIGTERM || sig == SIGINT) {
-        stop_reason = sig == SIGTERM ? "SIGTERM" : "SIGINT";
-        break;
-      }
-    }
-  }
-  cell.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason);
-  collect();
-  if (results) {
-    try {
-      close_interrupted(*results, config.name, nullptr);
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
-    }
-  }
-  std::fprintf(stderr, "<6>markcell: stopped (%s)\n", stop_reason.c_str());
-  std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n"
-            << cell.executive().timing_report();
-  print_faults(cell.faults());
-  return exit_code;
+  return service->run(signals);
 }
 
 int calibrate_stereo_command(const std::string& folder, const std::string& board_text, double square,

@@ -82,6 +82,17 @@ broken = [
     ("marking.record_timeout_s", 0.01, "marking.record_timeout_s"),  # below its range
     ("executive.tasks.vision_track", {"lane": "vision", "period_us": 33000, "budget_us": 100}, "executive.tasks.vision_track"),
     ("extras", {"a": 1}, "extras"),                                # unknown section
+    ("devices.arm.can.node_id", 200, "devices.arm.can.node_id"),   # above its range
+    ("devices.arm.serial.baud", "fast", "devices.arm.serial.baud"),  # not an integer
+    ("devices.gpio.input_filter_us", 200000, "devices.gpio.input_filter_us"),  # above its range
+    ("devices.gpio.lines.plc_done", DELETE, "devices.gpio.lines.plc_done"),  # a role without its line
+    ("devices.cameras.trigger", "line0", "devices.cameras.trigger"),  # not a choice
+    ("watchdog.device.timeout_s", -1, "watchdog.device.timeout_s"),  # below its range
+    ("safe_stop.rearm", "sometimes", "safe_stop.rearm"),           # not a choice
+    ("executive.lanes.control.priority", 120, "executive.lanes.control.priority"),  # above its range
+    ("executive.base_tick_us", 10, "executive.base_tick_us"),      # below its range
+    ("base_calibration.board.cols", 2, "base_calibration.board.cols"),  # below its range
+    ("panel_types.door.macro_features", 40, "panel_types.door.macro_features"),  # above its range
 ]
 
 with tempfile.TemporaryDirectory() as tmp:

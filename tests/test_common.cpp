@@ -1,6 +1,7 @@
 // Building blocks: the cross-lane triple buffer, the fixed histogram, the fault log and
 // the allocation guard the other tests rely on.
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <cstdlib>
@@ -10,6 +11,8 @@
 
 #include "alloc_guard.hpp"
 #include "markcell/common/fixed_string.hpp"
+#include "markcell/common/fixed_vector.hpp"
+#include "markcell/control/marking.hpp"
 #include "markcell/common/triple_buffer.hpp"
 #include "markcell/control/faults.hpp"
 #include "markcell/control/histogram.hpp"
@@ -138,4 +141,56 @@ TEST_CASE("fixed strings truncate at capacity instead of allocating") {
   const char* volatile tail = "abcdefgh";  // not a constant: the truncation happens at run time
   s.format("%d-%s", 42, tail);
   CHECK(s.view() == "42-abcde");
+}
+
+// The reference is std::vector: the same pushes give the same elements, up to the
+// capacity; past it nothing is written and the overflow is remembered until clear().
+TEST_CASE("fixed vectors hold what fits, refuse the rest with a flag, and never allocate") {
+  FixedVector<int, 4> v;
+  std::array<bool, 6> taken{};
+  std::size_t allocations = 0;
+  {
+    test::AllocationGuard guard;
+    for (int i = 0; i < 6; ++i) taken[static_cast<std::size_t>(i)] = v.push_back(10 * i);
+    allocations = guard.allocations();
+  }
+  CHECK(allocations == 0);
+  std::vector<int> reference;
+  for (int i = 0; i < 6; ++i)
+    if (taken[static_cast<std::size_t>(i)]) reference.push_back(10 * i);
+  CHECK(v.size() == 4);
+  CHECK(v.full());
+  CHECK(v.overflowed());
+  CHECK(std::vector<int>(v.begin(), v.end()) == std::vector<int>{0, 10, 20, 30});
+  CHECK(std::vector<int>(v.begin(), v.end()) == reference);
+  CHECK(v.emplace_back() == nullptr);
+  v.truncate(2);
+  CHECK(v.ssize() == 2);
+  CHECK(v.back() == 10);
+  CHECK(v.overflowed());  // truncating does not forget a refusal
+  v.clear();
+  CHECK(v.empty());
+  CHECK_FALSE(v.overflowed());
+  int* slot = v.emplace_back();
+  REQUIRE(slot != nullptr);
+  CHECK(*slot == 0);  // value-initialised, whatever was there before
+}
+
+// One tally for the journal line, the replay's progress and the report: a pulse cut
+// short counts as sprayed and as skipped, as each of them counted it before.
+TEST_CASE("a panel result's tally counts sprayed and skipped defects independently") {
+  control::PanelResult r;
+  const auto add = [&](bool sprayed, control::SkipReason skipped) {
+    control::DefectResult* d = r.defects.emplace_back();
+    REQUIRE(d != nullptr);
+    d->sprayed = sprayed;
+    d->skipped = skipped;
+  };
+  add(true, control::SkipReason::kNone);
+  add(true, control::SkipReason::kCutShort);
+  add(false, control::SkipReason::kPlanned);
+  add(false, control::SkipReason::kNone);  // still open
+  const auto t = r.tally();
+  CHECK(t.sprayed == 2);
+  CHECK(t.skipped == 2);
 }

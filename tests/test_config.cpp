@@ -405,7 +405,7 @@ TEST_CASE_METHOD(Fixture, "base_calibration: poses and the board's mounting as s
       "    - [0.2, 0.4, 1.0, 0, -90, 0]\n    - [0.1, 0.4, 1.0, 0, -90, 0]\n    - [0.2, 0.3, 1.0, 0, -90, 0]\n"
       "    - [0.2, 0.4, 0.9, 0, -90, 0]\n    - [0.3, 0.4, 1.0, 0, -90, 0]\n    - [0.2, 0.5, 1.0, 0, -90, 0]\n";
   const auto cfg = load_config_text(kValid + ok_poses, file(), task_catalog());
-  CHECK(cfg.base_calibration.board_cols == 7);
+  CHECK(cfg.base_calibration.board.cols == 7);
   REQUIRE(cfg.base_calibration.poses.size() == 6);
   CHECK(cfg.base_calibration.poses[3][2] == 0.9);
   CHECK(cfg.base_calibration.poses[3][4] == -90.0);

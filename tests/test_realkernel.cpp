@@ -553,7 +553,7 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
   const auto run = replay_on_real_devices(tmp, real_device_config(), "",
                                           "real: gpio chip " + env("MARKCELL_GPIO_CHIP") + ", CAN " + env("MARKCELL_VCAN"));
   // The controller's set-points to the arm's node over vcan, as the peer's socket heard them.
-  const auto node = host::load_config(run.config, host::task_catalog()).arm.can.node_id;
+  const auto node = host::load_config(run.config, host::task_catalog()).arm.can.link.node_id;
   char set_point[16];
   std::snprintf(set_point, sizeof set_point, ") can %03X#", canopen::kTargetPositionId + static_cast<unsigned>(node));
   CHECK(run.command_log.find(set_point) != std::string::npos);

@@ -297,7 +297,7 @@ TEST_CASE("inspection records: every bad field is rejected with its file, line a
   const std::string good = read_file(sim_dir() + "/recording/inspection.yaml");
   const auto job = host::parse_inspection_record(good, "inspection.yaml", cfg.panel_types);
   CHECK(job.mf_count == 10);
-  CHECK(job.defect_count == 3);
+  CHECK(job.defects.ssize() == 3);
   CHECK(job.panel_type_index == 0);
   auto bad = [&](const std::string& from, const std::string& to) {
     std::string text = good;
@@ -423,9 +423,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
     allocations = guard.allocations();
   }
   const auto& result = cell.marking()->current();
-  int sprayed = 0;
-  for (int i = 0; i < result.defect_count; ++i) sprayed += result.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
-  CHECK(sprayed == 3);
+  CHECK(result.tally().sprayed == 3);
   CHECK(cell.sim_nozzle()->kept() == 3);
   CHECK(allocations == 0);
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
@@ -702,7 +700,7 @@ TEST_CASE("a panel without an inspection record: PLC fault after the record time
   CHECK(r.fault);
   CHECK(r.reason.view() == "panel present without an inspection record");
   CHECK(r.panel_id.view() == "(no record)");
-  CHECK(r.defect_count == 0);
+  CHECK(r.defects.ssize() == 0);
   CHECK(cell.sim_arm()->model().tool().position == home);
   CHECK(cell.sim_nozzle()->kept() == 0);
   // The panel leaves: the PLC's fault line drops, ready for the next panel.
@@ -739,7 +737,7 @@ TEST_CASE("a record without a panel expires: its result a fault with the reason,
   CHECK(r.fault);
   CHECK(r.panel_id.view() == job.panel_id.view());
   CHECK(r.reason.view() == "inspection record expired: its panel never came");
-  REQUIRE(r.defect_count == 3);
+  REQUIRE(r.defects.ssize() == 3);
   for (int i = 0; i < 3; ++i) CHECK(r.defects[static_cast<std::size_t>(i)].skipped == control::SkipReason::kNoPanel);
   CHECK(cell.sim_nozzle()->kept() == 0);
   clock.run_until(t += seconds(5));

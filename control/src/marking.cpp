@@ -213,8 +213,7 @@ void MarkingSequence::take_job(Nanos now) {
   result_.serial = completed_.load(std::memory_order_relaxed) + 1;
   result_.panel_id = job_.panel_id.view();
   result_.started = now;
-  result_.defect_count = job_.defect_count;
-  for (int i = 0; i < job_.defect_count; ++i) result_.defects[static_cast<std::size_t>(i)].id = job_.defects[static_cast<std::size_t>(i)].id;
+  for (const PanelJob::Defect& d : job_.defects) result_.defects.emplace_back()->id = d.id;
 }
 
 void MarkingSequence::start_panel(Nanos now) {
@@ -357,7 +356,7 @@ std::size_t MarkingSequence::plan_inputs(Nanos now, int first, Eigen::Vector3d& 
   const Eigen::Isometry3d X_now = predictor_.predict(now), X_later = predictor_.predict(now + seconds(1));
   velocity.setZero();
   std::size_t n = 0;
-  for (int k = first; k < job_.defect_count; ++k) {
+  for (int k = first; k < job_.defects.ssize(); ++k) {
     const int i = order_[static_cast<std::size_t>(k)];
     const auto d = static_cast<std::size_t>(i);
     const Eigen::Vector3d p = nozzle_in_base(X_now, i).translation();
@@ -369,7 +368,7 @@ std::size_t MarkingSequence::plan_inputs(Nanos now, int first, Eigen::Vector3d& 
 
 bool MarkingSequence::every_defect_placed() const {
   // The defects still to do (a hold after a new search mid-panel comes after some).
-  for (int i = 0; i < job_.defect_count; ++i) {
+  for (int i = 0; i < job_.defects.ssize(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     const DefectResult& r = result_.defects[k];
     if (tools_[k].ok() && !r.sprayed && r.skipped == SkipReason::kNone && !placed(i)) return false;
@@ -454,11 +453,11 @@ bool MarkingSequence::intercalibrate_panel(const msg::PoseEstimate& e, const Pos
   place_tools(ic);
   // (A P set up anew mid-sequence orders only the defects not yet taken.)
   std::array<double, kMaxDefects> key{};
-  for (int i = 0; i < job_.defect_count; ++i) {
+  for (int i = 0; i < job_.defects.ssize(); ++i) {
     key[static_cast<std::size_t>(i)] = tools_[static_cast<std::size_t>(i)].centre.dot(params_.line_direction_CamR);
     if (next_ == 0) order_[static_cast<std::size_t>(i)] = i;
   }
-  std::sort(order_.begin() + next_, order_.begin() + job_.defect_count,
+  std::sort(order_.begin() + next_, order_.begin() + job_.defects.ssize(),
             [&](int a, int b) { return key[static_cast<std::size_t>(a)] > key[static_cast<std::size_t>(b)]; });
   place_unmeasured_mfs(e, ic);
   // The anchor the predictors follow: the centroid of the MFs found.
@@ -487,11 +486,11 @@ void MarkingSequence::place_unmeasured_mfs(const msg::PoseEstimate& e, const Int
 
 void MarkingSequence::place_tools(const Intercalibration& ic) {
   std::array<Eigen::Vector3d, kMaxDefectPoints> pts{};
-  for (int i = 0; i < job_.defect_count; ++i) {
+  for (int i = 0; i < job_.defects.ssize(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     const auto& d = job_.defects[k];
-    for (int j = 0; j < d.count; ++j) pts[static_cast<std::size_t>(j)] = ic.X_P_SL * d.points_SL[static_cast<std::size_t>(j)];
-    tools_[k] = tool_pose(std::span(pts.data(), static_cast<std::size_t>(d.count)), params_.standoff, Eigen::Vector3d::Zero(),
+    for (std::size_t j = 0; j < d.points_SL.size(); ++j) pts[j] = ic.X_P_SL * d.points_SL[j];
+    tools_[k] = tool_pose(std::span(pts.data(), d.points_SL.size()), params_.standoff, Eigen::Vector3d::Zero(),
                           params_.min_defect_points);
     result_.defects[k].tool = tools_[k].status;
     result_.defects[k].placement_sigma = ic.placement_sigma(tools_[k].centre);
@@ -520,7 +519,7 @@ bool MarkingSequence::placed(int defect) const {
 }
 
 int MarkingSequence::next_placed() const {
-  for (int k = next_; k < job_.defect_count; ++k)
+  for (int k = next_; k < job_.defects.ssize(); ++k)
     if (placed(order_[static_cast<std::size_t>(k)])) return k;
   return -1;
 }
@@ -531,7 +530,7 @@ void MarkingSequence::next_defect(Nanos now) {
   // and the refits meanwhile may place the other.
   if (const int k = next_placed(); k >= 0)
     std::rotate(order_.begin() + next_, order_.begin() + k, order_.begin() + k + 1);
-  while (next_ < job_.defect_count) {
+  while (next_ < job_.defects.ssize()) {
     defect_ = order_[static_cast<std::size_t>(next_++)];
     auto& r = result_.defects[static_cast<std::size_t>(defect_)];
     if (!tools_[static_cast<std::size_t>(defect_)].ok()) {
@@ -613,12 +612,12 @@ void MarkingSequence::fail_panel(Nanos now, std::string_view reason, SkipReason 
   }
   result_.fault = true;
   result_.reason = reason;
-  for (int i = 0; i < job_.defect_count; ++i) {
+  for (int i = 0; i < job_.defects.ssize(); ++i) {
     auto& d = result_.defects[static_cast<std::size_t>(i)];
     if (!d.sprayed && d.skipped == SkipReason::kNone) d.skipped = skip;
   }
   defect_ = -1;
-  next_ = job_.defect_count;
+  next_ = job_.defects.ssize();
   if (state_ == MarkingState::kIdle || state_ == MarkingState::kWaitRelease || state_ == MarkingState::kReporting) return;
   state_ = MarkingState::kHome;
   home_sent_ = false;
@@ -636,7 +635,7 @@ void MarkingSequence::panel_without_record(Nanos now) {
   result_.fault = true;
   result_.reason.assign("panel present without an inspection record");
   present_since_ = -1;
-  job_.defect_count = 0;  // (no copy of a whole empty job on the control lane)
+  job_.defects.clear();  // (no copy of a whole empty job on the control lane)
   job_.mf_count = 0;
   finish_panel(now);
 }
@@ -649,7 +648,7 @@ void MarkingSequence::record_without_panel(Nanos now) {
   result_.fault = true;
   result_.reason.assign("inspection record expired: its panel never came");
   fault_until_next_panel_ = true;  // no panel to release it: the PLC sees it until the next comes
-  for (int i = 0; i < job_.defect_count; ++i) result_.defects[static_cast<std::size_t>(i)].skipped = SkipReason::kNoPanel;
+  for (DefectResult& d : result_.defects) d.skipped = SkipReason::kNoPanel;
   finish_panel(now);
 }
 

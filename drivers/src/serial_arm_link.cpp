@@ -93,7 +93,7 @@ ArmLinkStatus SerialArmLink::poll(Nanos now) noexcept {
   }
   if (io_error_) status_ = ArmLinkStatus::kIoError;
   else if (no_ack_) status_ = ArmLinkStatus::kNoAck;
-  else if (state_silence_.silent_for(now) > config_.heartbeat_timeout) status_ = ArmLinkStatus::kHeartbeatLost;
+  else if (state_silence_.silent_for(now) > config_.state_timeout) status_ = ArmLinkStatus::kHeartbeatLost;
   else if (have_state_ && state_.fault()) status_ = ArmLinkStatus::kArmFault;
   else if (refused_) status_ = ArmLinkStatus::kRefused;
   else status_ = have_state_ ? ArmLinkStatus::kOk : ArmLinkStatus::kConnecting;

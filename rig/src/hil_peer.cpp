@@ -24,7 +24,7 @@ constexpr std::size_t kLogCapacity = std::size_t{1} << 18;
 drivers::SocketCanConfig peer_socket(const CanConfig& can) {
   drivers::SocketCanConfig c;
   c.interface = can.interface;
-  c.fd = can.fd;
+  c.fd = can.link.fd;
   return c;  // no filter: the arm hears everything on its bus, as a node does
 }
 
@@ -48,8 +48,8 @@ HilPeer::HilPeer(const CellConfig& config, std::string gpio_sim_dir, const std::
   const auto& arm = config.arm;
   if (arm.transport == ArmTransport::kCan) {
     bus_.emplace(peer_socket(arm.can), log_);
-    can_arm_.emplace(*bus_, static_cast<std::uint8_t>(arm.can.node_id), sim_arm_limits(arm), millis(10),
-                     arm.can.heartbeat_period, arm.can.heartbeat_timeout, arm.can.fd);
+    can_arm_.emplace(*bus_, arm.can.link.node_id, sim_arm_limits(arm), millis(10),
+                     arm.can.link.heartbeat_period, arm.can.link.heartbeat_timeout, arm.can.link.fd);
   } else if (arm.transport == ArmTransport::kSerial && !serial_peer_.empty()) {
     serial_arm_.emplace(sim_arm_limits(arm), millis(10));
     serial_arm_->set_tap(&HilPeer::tap_serial, this);

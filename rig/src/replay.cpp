@@ -80,7 +80,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   cfg.cameras.recording = recording;
   cfg.marking.predictor.kind = kind;
   cfg.watchdog.systemd = false;  // no service manager in a rig run
-  cfg.watchdog.device = false;
+  cfg.watchdog.device.enabled = false;
   if (!real) {  // (a real-device run's configuration was checked before the first run)
     cfg.gpio.simulated = true;
     cfg.arm.transport = ArmTransport::kSimulated;
@@ -135,11 +135,10 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
       return;
     }
     const auto& p = marking.current();
-    int sprayed = 0;
-    for (int i = 0; i < p.defect_count; ++i) sprayed += p.defects[static_cast<std::size_t>(i)].sprayed ? 1 : 0;
+    const int sprayed = p.tally().sprayed;
     std::fprintf(stderr, "%s[%s] t=%5.1f/%.1f s  %-12s sprayed %d/%d  frames %llu%s", tty ? "\r" : "", predictor.c_str(),
                  to_seconds(t), to_seconds(end), std::string(control::to_string(marking.state())).c_str(), sprayed,
-                 p.defect_count, static_cast<unsigned long long>(cell.vision_stats()->frames), tty ? "   " : "\n");
+                 p.defects.ssize(), static_cast<unsigned long long>(cell.vision_stats()->frames), tty ? "   " : "\n");
   };
   sim::PlcScript script(options.plc_events);
   int stopped_by = 0;
@@ -217,13 +216,10 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   }
   for (std::size_t i = 0; i < marking.prediction_samples(); ++i) run.samples.push_back(marking.prediction_sample(i));
   for (std::size_t i = 0; i < marking.panel_frames(); ++i) run.panel_frames.push_back(marking.panel_frame(i));
-  int sprayed = 0;
+  const int sprayed = run.panel.tally().sprayed;
   Nanos first = -1;
-  for (int i = 0; i < run.panel.defect_count; ++i) {
-    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
-    sprayed += d.sprayed ? 1 : 0;
+  for (const control::DefectResult& d : run.panel.defects)
     if (d.approach_start >= 0 && (first < 0 || d.approach_start < first)) first = d.approach_start;
-  }
   if (sprayed > 0 && first >= 0) run.seconds_per_defect = to_seconds(run.panel.finished - first) / sprayed;
 
   // Scoring against the recording's truth.
@@ -250,13 +246,13 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
       sprays.push_back({nozzle->spray(i).time, X_CamR_Base * control::to_isometry(nozzle->spray(i).tool)});
   }
   std::vector<SkippedDefect> skipped;
-  for (int i = 0; i < run.panel.defect_count; ++i) {
+  for (int i = 0; i < run.panel.defects.ssize(); ++i) {
     const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
     if (d.skipped != control::SkipReason::kNone) skipped.push_back({d.id, std::string(control::to_string(d.skipped))});
   }
   run.score = score_sprays(panel, [&](Nanos t) { return truth.at(t); }, defects, sprays, skipped, options.radius);
   run.scored = true;
-  for (int i = 0; i < run.panel.defect_count; ++i) {
+  for (int i = 0; i < run.panel.defects.ssize(); ++i) {
     const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
     if (!d.sprayed) continue;
     if (const auto c = true_centre(d.id, d.spray_requested)) {

@@ -37,12 +37,10 @@ struct Counts {
 };
 Counts counts(const PredictorRun& r) {
   Counts c;
-  for (int i = 0; i < r.panel.defect_count; ++i) {
-    const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
-    c.skipped += d.skipped != control::SkipReason::kNone ? 1 : 0;
-    c.sprayed += d.sprayed ? 1 : 0;
-  }
-  c.planned = r.panel.defect_count - c.skipped;
+  const auto tally = r.panel.tally();
+  c.skipped = tally.skipped;
+  c.sprayed = tally.sprayed;
+  c.planned = r.panel.defects.ssize() - c.skipped;
   c.marked = r.scored ? r.score.marked : c.sprayed;
   return c;
 }
@@ -59,7 +57,7 @@ struct PlanCheck {
 PlanCheck plan_check(const PredictorRun& r) {
   PlanCheck p;
   p.made = r.panel.planned_at >= 0;
-  for (int i = 0; i < r.panel.defect_count && p.made; ++i) {
+  for (int i = 0; i < r.panel.defects.ssize() && p.made; ++i) {
     const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
     if (d.plan == control::PlanVerdict::kNotPlanned) continue;
     const bool feasible = d.plan == control::PlanVerdict::kFeasible;
@@ -78,7 +76,7 @@ std::string plan_json(const PredictorRun& r) {
                   ", \"matches_run\": " + (p.matches ? "true" : "false") + ", \"spray_time_error_s_max\": " +
                   num(p.time_error_max) + ", \"verdicts\": [";
   bool first = true;
-  for (int i = 0; i < r.panel.defect_count; ++i) {
+  for (int i = 0; i < r.panel.defects.ssize(); ++i) {
     const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
     // Times from when the plan was made.
     const auto since = [&](Nanos t) { return t >= 0 ? num(to_seconds(t - r.panel.planned_at)) : std::string("null"); };
@@ -98,7 +96,7 @@ std::string run_json(const PredictorRun& r, const std::string& ind) {
   o << ind << "\"defects\": {\"planned\": " << c.planned << ", \"marked\": " << c.marked << ", \"skipped\": " << c.skipped
     << ", \"sprayed\": " << c.sprayed << ", \"skipped_reasons\": [";
   bool first = true;
-  for (int i = 0; i < r.panel.defect_count; ++i) {
+  for (int i = 0; i < r.panel.defects.ssize(); ++i) {
     const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
     if (d.skipped == control::SkipReason::kNone) continue;
     o << (first ? "" : ", ") << "{\"id\": " << d.id << ", \"reason\": " << quote(control::to_string(d.skipped)) << "}";
@@ -428,7 +426,7 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
   }, "0.5 Hz");
   row("deadline misses", [](const PredictorRun& r) { return std::to_string(r.deadline_misses); }, "-");
   for (const auto& r : report.runs)
-    for (int i = 0; i < r.panel.defect_count; ++i) {
+    for (int i = 0; i < r.panel.defects.ssize(); ++i) {
       const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
       if (d.skipped != control::SkipReason::kNone)
         o << "  [" << r.predictor << "] defect " << d.id << " skipped: " << control::to_string(d.skipped) << "\n";

@@ -19,7 +19,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::string text(reinterpret_cast<const char*>(data), size);
   try {
     const markcell::control::PanelJob job = markcell::host::parse_inspection_record(text, "fuzz.yaml", types);
-    if (job.defect_count < 0 || job.defect_count > markcell::control::kMaxDefects) std::abort();
+    if (job.defects.overflowed() || job.defects.ssize() > markcell::control::kMaxDefects) std::abort();
     if (job.mf_count != types[static_cast<std::size_t>(job.panel_type_index)].macro_features) std::abort();
     if (!markcell::host::panel_id_problem(job.panel_id.view()).empty()) std::abort();
   } catch (const markcell::host::RecordInvalid& e) {

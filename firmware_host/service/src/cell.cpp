@@ -68,20 +68,9 @@ TaskTable task_catalog() {
   return kDecls;
 }
 
-drivers::CanArmLinkConfig can_link_config(const CanConfig& c) {
-  return drivers::CanArmLinkConfig{static_cast<std::uint8_t>(c.node_id), static_cast<std::uint8_t>(c.controller_node_id),
-                                   c.heartbeat_period, c.heartbeat_timeout, c.fd};
-}
-
 drivers::CameraSettings camera_settings(const CameraConfig& c, const std::string& id) {
-  drivers::CameraSettings s;
-  s.id = id;
-  s.width = c.width;
-  s.height = c.height;
-  s.fps = c.fps;
-  s.exposure_us = c.exposure_us;
-  s.gain_db = c.gain_db;
-  s.trigger = c.trigger == CameraTrigger::kSoftware ? drivers::TriggerMode::kSoftware : drivers::TriggerMode::kHardware;
+  drivers::CameraSettings s = c;  // what both cameras are set to ...
+  s.id = id;                      // ... and this one's id
   return s;
 }
 
@@ -110,17 +99,16 @@ std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::uniqu
     case ArmTransport::kCan: {
       drivers::SocketCanConfig bus;
       bus.interface = arm.can.interface;
-      bus.fd = arm.can.fd;
-      const auto node = static_cast<std::uint32_t>(arm.can.node_id);
+      bus.fd = arm.can.link.fd;
+      const auto node = static_cast<std::uint32_t>(arm.can.link.node_id);
       bus.filter_ids = {drivers::canopen::kToolPositionId + node, drivers::canopen::kToolRotationId + node,
                         drivers::canopen::kHeartbeatId + node, drivers::canopen::kToolFdId + node};
       bus.filter_count = 4;
       bus_out = std::make_unique<drivers::SocketCanBus>(bus);
-      return std::make_unique<drivers::CanArmLink>(*bus_out, can_link_config(arm.can));
+      return std::make_unique<drivers::CanArmLink>(*bus_out, arm.can.link);
     }
     case ArmTransport::kSerial:
-      return std::make_unique<drivers::SerialArmLink>(drivers::SerialArmLinkConfig{
-          arm.serial.device, arm.serial.baud, arm.serial.ack_timeout, arm.serial.retries, arm.serial.state_timeout});
+      return std::make_unique<drivers::SerialArmLink>(arm.serial);
   }
   throw std::logic_error("make_arm_link: the simulated arm lives in the cell's simulated world");
 }
@@ -261,9 +249,9 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
         sim_world_->wire.set_time_source([](void* c) { return static_cast<control::SimClock*>(c)->global_now(); }, sim_clock_);
       const drivers::SimArmLimits limits = sim_arm_limits(config.arm);
       sim_world_->arm = std::make_unique<drivers::SimCanArm>(
-          sim_world_->wire.b(), static_cast<std::uint8_t>(config.arm.can.node_id), limits, millis(10),
-          config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout, config.arm.can.fd);
-      arm_link_ = std::make_unique<drivers::CanArmLink>(sim_world_->wire.a(), can_link_config(config.arm.can));
+          sim_world_->wire.b(), config.arm.can.link.node_id, limits, millis(10),
+          config.arm.can.link.heartbeat_period, config.arm.can.link.heartbeat_timeout, config.arm.can.link.fd);
+      arm_link_ = std::make_unique<drivers::CanArmLink>(sim_world_->wire.a(), config.arm.can.link);
       break;
     }
     case ArmTransport::kCan:
@@ -344,9 +332,9 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     entry->bind(*this, task.name);
   }
   if (config.watchdog.systemd) executive_->add_watchdog(notifier_);
-  if (config.watchdog.device) {
+  if (config.watchdog.device.enabled) {
     watchdog_device_ = std::make_unique<drivers::WatchdogDevice>(
-        drivers::WatchdogDeviceConfig{config.watchdog.device_path, config.watchdog.device_timeout_s});
+        config.watchdog.device.config);
     watchdog_device_sink_ = std::make_unique<DeviceWatchdogSink>(*watchdog_device_);
     executive_->add_watchdog(*watchdog_device_sink_);
   }

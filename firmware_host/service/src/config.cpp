@@ -3,6 +3,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <concepts>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -293,11 +294,21 @@ class Reader {
   }
 
   std::size_t error_count() const { return errors_.size(); }
+  // Whether the key at `path` was reported since the error count was `since`.
+  bool failed_since(std::size_t since, const std::string& path) const {
+    for (std::size_t i = since; i < errors_.size(); ++i)
+      if (errors_[i].path == path) return true;
+    return false;
+  }
 
  private:
   std::string file_;
   std::vector<ConfigError>& errors_;
 };
+
+template <class Params>
+void read_params(Reader& r, const YAML::Node& node, const std::string& path, Params& params,
+                 const std::vector<std::string>& extra_keys = {});
 
 // Reads the parameters a struct declares in its Visit() from one section of the YAML,
 // through the Reader (so every error keeps its FILE:LINE:COL: key.path: form). A key
@@ -313,7 +324,10 @@ class YamlParams {
     r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
     if (read_ok()) field = to_si(v, p.unit);
   }
-  void operator()(const Param& p, int& field) {
+  // Integers of any width (counts, node ids, baud rates): the range is the Param's.
+  template <std::integral T>
+    requires(!std::same_as<T, bool> && !std::same_as<T, Nanos>)
+  void operator()(const Param& p, T& field) {
     if (!given(p)) return;
     long long v = 0;
     r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
@@ -323,22 +337,31 @@ class YamlParams {
         r_.error(node_[std::string(p.key)], key_path(p), "must be odd (a window centred on the point)");
         return;
       }
-      field = static_cast<int>(v / 2);
+      field = static_cast<T>(v / 2);
     } else {
-      field = static_cast<int>(v);
+      field = static_cast<T>(v);
     }
   }
   void operator()(const Param& p, Nanos& field) {
     if (!given(p)) return;
-    if (p.unit == Unit::kMillisecond) {
+    if (integer_duration(p.unit)) {
       long long v = 0;
       r_.integer(node_, path_, std::string(p.key), v, static_cast<long long>(p.lo), static_cast<long long>(p.hi), false);
-      if (read_ok()) field = millis(v);
+      if (read_ok()) field = v * static_cast<Nanos>(nanos_per(p.unit));
     } else {
       double v = 0;
       r_.number(node_, path_, std::string(p.key), v, p.lo, p.hi, false);
-      if (read_ok()) field = static_cast<Nanos>(v * 1e9);
+      if (read_ok()) field = to_nanos(v, p.unit);
     }
+  }
+  // Text: `lo` and `hi` bound its length.
+  void operator()(const Param& p, std::string& field) {
+    if (given(p)) r_.text(node_, path_, std::string(p.key), field, false, static_cast<std::size_t>(p.hi));
+  }
+  // A nested map, read by its own declarations.
+  template <typename T>
+  void operator()(const Param& p, Section<T> section) {
+    if (given(p)) read_params(r_, node_[std::string(p.key)], key_path(p), section.value);
   }
   void operator()(const Param& p, bool& field) {
     if (given(p)) r_.boolean(node_, path_, std::string(p.key), field, false);
@@ -390,40 +413,36 @@ struct ParamKeys {
 };
 
 // One section whose parameters a struct declares (TrackerParams, MarkingParams, ...): its
-// keys, each read and converted, then the struct's own cross-field checks.
+// keys, each read and converted, then the struct's own cross-field checks, each at the
+// key it names (at the section when that key is not written). `extra_keys`: what the
+// caller reads by hand in the same map (lists, maps of names, files).
 template <class Params>
-void read_params(Reader& r, const YAML::Node& node, const std::string& path, Params& params) {
+void read_params(Reader& r, const YAML::Node& node, const std::string& path, Params& params,
+                 const std::vector<std::string>& extra_keys) {
   ParamKeys declared;
   params.Visit(declared);
+  declared.keys.insert(declared.keys.end(), extra_keys.begin(), extra_keys.end());
   if (!r.map(node, path, declared.keys)) return;
   YamlParams reader(r, node, path);
   params.Visit(reader);
-  params.validate([&](std::string_view key, std::string_view message) {
-    r.error(node[std::string(key)], path + "." + std::string(key), std::string(message));
-  });
+  if constexpr (requires { params.validate([](std::string_view, std::string_view) {}); }) {
+    params.validate([&](std::string_view key, std::string_view message) {
+      const YAML::Node at = node[std::string(key)];
+      r.error(at.IsDefined() ? at : node, path + "." + std::string(key), std::string(message));
+    });
+  }
 }
 
 void read_executive(Reader& r, const YAML::Node& node, TaskTable known_tasks, CellConfig& cfg,
                     std::vector<YAML::Mark>& task_marks) {
   const std::string P = "executive";
-  if (!r.map(node, P, {"base_tick_us", "lane_stall_ms", "supervisor_period_ms", "degrade_recovery_runs",
-                       "lock_memory", "lanes", "tasks"}))
-    return;
   auto& spec = cfg.executive;
-  long long tick_us = 0;
-  r.integer(node, P, "base_tick_us", tick_us, 50, 1'000'000);
-  spec.tick = micros(tick_us);
-  long long stall_ms = 0, sup_ms = 0;
-  r.integer(node, P, "lane_stall_ms", stall_ms, 1, 60'000);
-  r.integer(node, P, "supervisor_period_ms", sup_ms, 1, 10'000);
-  spec.lane_stall_limit = millis(stall_ms);
-  spec.supervisor_period = millis(sup_ms);
-  r.integer(node, P, "degrade_recovery_runs", spec.degrade_recovery_runs, 1, 1'000'000, false);
-  r.boolean(node, P, "lock_memory", spec.lock_memory, false);
-  if (sup_ms > 0 && stall_ms > 0 && sup_ms * 2 > stall_ms)
-    r.error(node["supervisor_period_ms"], P + ".supervisor_period_ms",
-            "supervisor_period_ms " + std::to_string(sup_ms) + " must be at most half of lane_stall_ms " +
-                std::to_string(stall_ms) + ", or a stall could go unseen for too long");
+  const std::size_t errors_before = r.error_count();
+  read_params(r, node, P, spec, {"lanes", "tasks"});
+  if (!node.IsMap()) return;
+  // The checks below build on the tick and the stall limit: not on a value refused.
+  const long long tick_us = r.failed_since(errors_before, P + ".base_tick_us") ? 0 : spec.tick / kNanosPerMicro;
+  const long long stall_ms = r.failed_since(errors_before, P + ".lane_stall_ms") ? 0 : spec.lane_stall_limit / millis(1);
 
   std::vector<std::string> lane_names;
   if (const auto lanes = r.child(node, P, "lanes", true); lanes && r.named_map(*lanes, P + ".lanes")) {
@@ -435,10 +454,7 @@ void read_executive(Reader& r, const YAML::Node& node, TaskTable known_tasks, Ce
       const std::string LP = P + ".lanes." + name;
       control::LaneSpec lane;
       lane.name = name;
-      if (r.map(kv.second, LP, {"core", "priority"})) {
-        r.integer(kv.second, LP, "core", lane.core, -1, 1023);
-        r.integer(kv.second, LP, "priority", lane.priority, 0, 99);
-      }
+      read_params(r, kv.second, LP, lane);
       lane_names.push_back(name);
       spec.lanes.push_back(lane);
     }
@@ -524,28 +540,9 @@ void read_executive(Reader& r, const YAML::Node& node, TaskTable known_tasks, Ce
   }
 }
 
-void read_watchdog(Reader& r, const YAML::Node& node, WatchdogConfig& w) {
-  const std::string P = "watchdog";
-  if (!r.map(node, P, {"systemd", "systemd_interval_ms", "device"})) return;
-  r.boolean(node, P, "systemd", w.systemd);
-  long long interval_ms = 100;
-  r.integer(node, P, "systemd_interval_ms", interval_ms, 10, 600'000, false);
-  w.systemd_interval = millis(interval_ms);
-  if (const auto d = r.child(node, P, "device", true); d && r.map(*d, P + ".device", {"enabled", "path", "timeout_s"})) {
-    r.boolean(*d, P + ".device", "enabled", w.device);
-    r.text(*d, P + ".device", "path", w.device_path);
-    r.integer(*d, P + ".device", "timeout_s", w.device_timeout_s, 0, 3600);
-  }
-}
-
 void read_gpio(Reader& r, const YAML::Node& node, GpioConfig& g) {
   const std::string P = "devices.gpio";
-  if (!r.map(node, P, {"simulated", "chip", "lines", "input_filter_us"})) return;
-  r.boolean(node, P, "simulated", g.simulated);
-  long long filter_us = g.input_filter / kNanosPerMicro;
-  r.integer(node, P, "input_filter_us", filter_us, 0, 100'000, false);
-  g.input_filter = filter_us * kNanosPerMicro;
-  r.text(node, P, "chip", g.chip);
+  read_params(r, node, P, g, {"lines"});
   std::vector<std::string> roles;
   for (std::size_t i = 0; i < kLineRoleCount; ++i) roles.emplace_back(to_string(static_cast<LineRole>(i)));
   const auto lines = r.child(node, P, "lines", true);
@@ -553,9 +550,8 @@ void read_gpio(Reader& r, const YAML::Node& node, GpioConfig& g) {
   for (std::size_t i = 0; i < kLineRoleCount; ++i) {
     const std::string LP = P + ".lines." + roles[i];
     const auto l = r.child(*lines, P + ".lines", roles[i], true);
-    if (!l || !r.map(*l, LP, {"line", "active_low"})) continue;
-    r.text(*l, LP, "line", g.lines[i].line);
-    r.boolean(*l, LP, "active_low", g.lines[i].active_low, false);
+    if (!l) continue;
+    read_params(r, *l, LP, g.lines[i]);
     for (std::size_t j = 0; j < i; ++j)
       if (!g.lines[i].line.empty() && g.lines[j].line == g.lines[i].line)
         r.error((*l)["line"], LP + ".line",
@@ -569,76 +565,21 @@ void read_arm(Reader& r, const YAML::Node& node, ArmConfig& a) {
   if (const auto l = r.child(node, P, "limits", true)) read_params(r, *l, P + ".limits", a.limits);
   r.choice(node, P, "transport", a.transport,
            {{"simulated", ArmTransport::kSimulated}, {"can", ArmTransport::kCan}, {"serial", ArmTransport::kSerial}});
-  if (const auto c = r.child(node, P, "can", a.transport == ArmTransport::kCan);
-      c && r.map(*c, P + ".can", {"interface", "node_id", "controller_node_id", "heartbeat_ms", "heartbeat_timeout_ms", "fd"})) {
-    const std::string CP = P + ".can";
-    r.text(*c, CP, "interface", a.can.interface, true, 15);  // IFNAMSIZ - 1
-    r.integer(*c, CP, "node_id", a.can.node_id, 1, 127);
-    r.integer(*c, CP, "controller_node_id", a.can.controller_node_id, 1, 127);
-    long long hb = 50, hbt = 150;
-    r.integer(*c, CP, "heartbeat_ms", hb, 1, 65'535);
-    r.integer(*c, CP, "heartbeat_timeout_ms", hbt, 1, 65'535);
-    r.boolean(*c, CP, "fd", a.can.fd, false);
-    a.can.heartbeat_period = millis(hb);
-    a.can.heartbeat_timeout = millis(hbt);
-    if (a.can.node_id == a.can.controller_node_id)
-      r.error((*c)["controller_node_id"], CP + ".controller_node_id",
-              "controller_node_id must differ from node_id " + std::to_string(a.can.node_id));
-    if (hbt <= hb)
-      r.error((*c)["heartbeat_timeout_ms"], CP + ".heartbeat_timeout_ms",
-              "heartbeat_timeout_ms " + std::to_string(hbt) + " must exceed heartbeat_ms " + std::to_string(hb));
-  }
-  if (const auto s = r.child(node, P, "serial", a.transport == ArmTransport::kSerial);
-      s && r.map(*s, P + ".serial", {"device", "baud", "ack_timeout_ms", "retries", "state_timeout_ms"})) {
-    const std::string SP = P + ".serial";
-    r.text(*s, SP, "device", a.serial.device);
-    r.integer(*s, SP, "baud", a.serial.baud, 1, 4'000'000);
-    static constexpr std::array<int, 10> kBauds = {9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000};
-    if (a.serial.baud > 0 && std::find(kBauds.begin(), kBauds.end(), a.serial.baud) == kBauds.end())
-      r.error((*s)["baud"], SP + ".baud",
-              "baud " + std::to_string(a.serial.baud) +
-                  " is not a termios rate (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000)");
-    long long ack = 20;
-    r.integer(*s, SP, "ack_timeout_ms", ack, 1, 10'000);
-    a.serial.ack_timeout = millis(ack);
-    r.integer(*s, SP, "retries", a.serial.retries, 0, 100);
-    long long state = a.serial.state_timeout / millis(1);
-    r.integer(*s, SP, "state_timeout_ms", state, 1, 65'535, false);
-    a.serial.state_timeout = millis(state);
-  }
+  // The link the transport names must be written; the other may stay (and is checked).
+  if (const auto c = r.child(node, P, "can", a.transport == ArmTransport::kCan)) read_params(r, *c, P + ".can", a.can);
+  if (const auto s = r.child(node, P, "serial", a.transport == ArmTransport::kSerial))
+    read_params(r, *s, P + ".serial", a.serial);
 }
 
 void read_cameras(Reader& r, const YAML::Node& node, CameraConfig& c) {
   const std::string P = "devices.cameras";
-  if (!r.map(node, P, {"source", "left_id", "right_id", "width", "height", "fps", "exposure_us", "gain_db", "trigger",
-                       "latency_ms", "lost_after_ms", "recording"}))
-    return;
-  r.choice(node, P, "source", c.source,
-           {{"simulated", CameraSource::kSimulated}, {"aravis", CameraSource::kAravis}, {"recording", CameraSource::kRecording}});
-  const bool ids_required = c.source == CameraSource::kAravis;
-  r.text(node, P, "left_id", c.left_id, ids_required);
-  r.text(node, P, "right_id", c.right_id, ids_required);
-  if (!c.left_id.empty() && c.left_id == c.right_id)
-    r.error(node["right_id"], P + ".right_id", "right_id must differ from left_id '" + c.left_id + "'");
-  r.integer(node, P, "width", c.width, 16, 16384);
-  r.integer(node, P, "height", c.height, 16, 16384);
-  r.number(node, P, "fps", c.fps, 0.1, 1000.0);
-  r.number(node, P, "exposure_us", c.exposure_us, 1.0, 1e6);
-  r.number(node, P, "gain_db", c.gain_db, 0.0, 48.0, false);
-  r.choice(node, P, "trigger", c.trigger, {{"software", CameraTrigger::kSoftware}, {"hardware", CameraTrigger::kHardware}});
-  long long latency = 15;
-  r.integer(node, P, "latency_ms", latency, 0, 1000, false);
-  c.latency = millis(latency);
-  long long lost_after = 1500;
-  r.integer(node, P, "lost_after_ms", lost_after, 100, 60000, false);
-  c.lost_after = millis(lost_after);
+  read_params(r, node, P, c, {"recording"});
+  if (!node.IsMap()) return;
   if (c.source == CameraSource::kRecording) {
     r.existing_file(node, P, "recording", c.recording, true);
   } else if (node["recording"].IsDefined()) {
     r.error(node["recording"], P + ".recording", "only used with source: recording");
   }
-  if (c.fps > 0 && c.exposure_us > 1e6 / c.fps)
-    r.error(node["exposure_us"], P + ".exposure_us", "exposure longer than the frame period at the configured fps");
 }
 
 void read_calibration(Reader& r, const YAML::Node& node, CellConfig& cfg) {
@@ -676,8 +617,8 @@ void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
     const std::string TP = P + "." + name;
     PanelTypeConfig panel;
     panel.name = name;
-    if (r.map(kv.second, TP, {"macro_features", "file"})) {
-      r.integer(kv.second, TP, "macro_features", panel.macro_features, 3, 16);
+    read_params(r, kv.second, TP, panel, {"file"});
+    if (kv.second.IsMap()) {
       if (kv.second["file"].IsDefined()) {
         r.existing_file(kv.second, TP, "file", panel.file);
         if (!panel.file.empty()) {
@@ -701,12 +642,8 @@ void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
 
 void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationConfig& b) {
   const std::string P = "base_calibration";
-  if (!r.map(node, P, {"board", "X_Tool_Board", "poses", "max_rms_mm", "max_abs_mm", "move_timeout_s", "settle_ms"})) return;
-  if (const auto board = r.child(node, P, "board", false); board && r.map(*board, P + ".board", {"cols", "rows", "square_m"})) {
-    r.integer(*board, P + ".board", "cols", b.board_cols, 3, 40);
-    r.integer(*board, P + ".board", "rows", b.board_rows, 3, 40);
-    r.number(*board, P + ".board", "square_m", b.square_m, 0.002, 0.5);
-  }
+  read_params(r, node, P, b, {"X_Tool_Board", "poses"});
+  if (!node.IsMap()) return;
   // Six numbers: a position in metres and a rotation vector in degrees.
   const auto six = [&](const YAML::Node& n, const std::string& path, PoseSix& out) {
     const char* expected = "expected [x, y, z, rx, ry, rz]: metres within 10, a rotation vector in degrees within 360";
@@ -739,14 +676,6 @@ void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationCon
       }
     }
   }
-  r.number(node, P, "max_rms_mm", b.max_rms_mm, 0.01, 100.0, false);
-  r.number(node, P, "max_abs_mm", b.max_abs_mm, 0.01, 500.0, false);
-  double move = to_seconds(b.move_timeout);
-  long long settle = b.settle / 1'000'000;
-  r.number(node, P, "move_timeout_s", move, 0.1, 600.0, false);
-  r.integer(node, P, "settle_ms", settle, 0, 60'000, false);
-  b.move_timeout = static_cast<Nanos>(move * 1e9);
-  b.settle = millis(settle);
 }
 
 }  // namespace
@@ -840,13 +769,8 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
   }
   std::vector<YAML::Mark> task_marks;
   if (const auto e = section("executive")) read_executive(r, *e, known_tasks, cfg, task_marks);
-  if (const auto w = section("watchdog")) read_watchdog(r, *w, cfg.watchdog);
-  if (const auto s = section("safe_stop"); s && r.map(*s, "safe_stop", {"arm", "plc_fault_line", "rearm"})) {
-    r.choice(*s, "safe_stop", "arm", cfg.safe_stop.arm, {{"hold", ArmSafeAction::kHold}, {"home", ArmSafeAction::kHome}});
-    r.choice(*s, "safe_stop", "rearm", cfg.safe_stop.rearm,
-             {{"cycle_enable", RearmConfig::kCycleEnable}, {"never", RearmConfig::kNever}}, false);
-    r.boolean(*s, "safe_stop", "plc_fault_line", cfg.safe_stop.plc_fault_line);
-  }
+  if (const auto w = section("watchdog")) read_params(r, *w, "watchdog", cfg.watchdog);
+  if (const auto s = section("safe_stop")) read_params(r, *s, "safe_stop", cfg.safe_stop);
   if (const auto sp = section("spray")) read_params(r, *sp, "spray", cfg.spray);
   if (const auto d = section("devices"); d && r.map(*d, "devices", {"gpio", "arm", "cameras"})) {
     if (const auto g = r.child(*d, "devices", "gpio", true)) read_gpio(r, *g, cfg.gpio);

@@ -122,12 +122,10 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
     if (!pts.IsSequence() || pts.size() == 0) fail(path, pts.IsDefined() ? pts : d, F + ".points", "expected a non-empty list of [x, y, z]");
     if (pts.size() > static_cast<std::size_t>(control::kMaxDefectPoints))
       fail(path, pts, F + ".points", std::to_string(pts.size()) + " points, at most " + std::to_string(control::kMaxDefectPoints));
-    auto& out = job.defects[i];
+    auto& out = *job.defects.emplace_back();  // bounded above: kMaxDefects
     out.id = did;
-    out.count = static_cast<int>(pts.size());
-    for (std::size_t j = 0; j < pts.size(); ++j) out.points_SL[j] = point(path, pts[j], F + ".points[" + std::to_string(j) + "]");
+    for (std::size_t j = 0; j < pts.size(); ++j) out.points_SL.push_back(point(path, pts[j], F + ".points[" + std::to_string(j) + "]"));
   }
-  job.defect_count = static_cast<int>(defects.size());
   return job;
 }
 

@@ -207,7 +207,7 @@ std::string ResultsFile::to_json(const control::PanelResult& r, const std::strin
        std::to_string(ic.inliers) + ", \"max_abs_m\": [" + num(ic.max_abs.x()) + ", " + num(ic.max_abs.y()) + ", " +
        num(ic.max_abs.z()) + "], \"rms_m\": [" + num(ic.rms.x()) + ", " + num(ic.rms.y()) + ", " + num(ic.rms.z()) + "]}";
   o += ", \"defects\": [";
-  for (int i = 0; i < r.defect_count; ++i) {
+  for (int i = 0; i < r.defects.ssize(); ++i) {
     const auto& d = r.defects[static_cast<std::size_t>(i)];
     o += std::string(i ? ", " : "") + "{\"id\": " + std::to_string(d.id) + ", \"sprayed\": " + (d.sprayed ? "true" : "false");
     if (d.sprayed) o += ", \"spray_s\": " + num(to_seconds(d.spray_requested));

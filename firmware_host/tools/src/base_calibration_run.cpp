@@ -71,7 +71,7 @@ std::string status_text(drivers::ArmLinkStatus s) { return std::string(drivers::
 }  // namespace
 
 control::BoardGeometry board_geometry(const BaseCalibrationConfig& c) {
-  return control::BoardGeometry{c.board_cols, c.board_rows, c.square_m};
+  return c.board;
 }
 
 drivers::ToolPose tool_pose(const PoseSix& p) {
@@ -273,9 +273,9 @@ class RigBoardDevices final : public BaseCalibrationDevices {
       : config_(config.base_calibration),
         X_CamR_Base_true_(X_Base_CamR_true.inverse()),
         seed_(seed),
-        arm_(wire_.b(), static_cast<std::uint8_t>(config.arm.can.node_id), sim_arm_limits(config.arm), millis(10),
-             config.arm.can.heartbeat_period, config.arm.can.heartbeat_timeout, config.arm.can.fd),
-        link_(wire_.a(), can_link_config(config.arm.can)),
+        arm_(wire_.b(), config.arm.can.link.node_id, sim_arm_limits(config.arm), millis(10),
+             config.arm.can.link.heartbeat_period, config.arm.can.link.heartbeat_timeout, config.arm.can.link.fd),
+        link_(wire_.a(), config.arm.can.link),
         renderer_(stereo, rig::RenderSettings{}) {
     wire_.set_time_source([](void* self) { return static_cast<RigBoardDevices*>(self)->now_; }, this);
     arm_.start(now_);
@@ -292,7 +292,7 @@ class RigBoardDevices final : public BaseCalibrationDevices {
   bool capture(cv::Mat& left, cv::Mat& right, std::string&) override {
     // Where the arm's mechanics hold the board, not where it says it does.
     const Eigen::Isometry3d X_CamR_Board = X_CamR_Base_true_ * control::to_isometry(arm_.model().tool()) * X_Tool_Board(config_);
-    renderer_.render_board(config_.board_cols, config_.board_rows, config_.square_m, X_CamR_Board, seed_ * 1000 + shots_++,
+    renderer_.render_board(config_.board.cols, config_.board.rows, config_.board.square, X_CamR_Board, seed_ * 1000 + shots_++,
                            left, right);
     return true;
   }

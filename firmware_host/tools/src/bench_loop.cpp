@@ -109,7 +109,7 @@ int bench_loop(const CellConfig& config, const LoopBenchOptions& options) {
   cfg.executive.lanes = {lane_spec};
   cfg.executive.tasks = tasks;
   cfg.watchdog.systemd = false;
-  cfg.watchdog.device = false;
+  cfg.watchdog.device.enabled = false;
 
   Latency ours;
   std::vector<std::string> warnings;

@@ -32,6 +32,7 @@ enum class Unit : std::uint8_t {
   kMetre,
   kMillimetre,   // stored in metres
   kDegree,       // stored in radians
+  kMicrosecond,  // an integer in the configuration, stored as Nanos
   kMillisecond,  // an integer in the configuration, stored as Nanos
   kSecond,       // a number in the configuration, stored as Nanos
   kMetrePerSecond,
@@ -64,6 +65,7 @@ constexpr std::string_view unit_name(Unit u) {
     case Unit::kMetre: return "m";
     case Unit::kMillimetre: return "mm";
     case Unit::kDegree: return "deg";
+    case Unit::kMicrosecond: return "us";
     case Unit::kMillisecond: return "ms";
     case Unit::kSecond: return "s";
     case Unit::kMetrePerSecond: return "m/s";
@@ -76,7 +78,7 @@ constexpr std::string_view unit_name(Unit u) {
 struct Param {
   std::string_view key;  // in its section of the configuration
   Unit unit = Unit::kNone;
-  double lo = 0, hi = 0;  // the accepted range, in `unit` (both ends included)
+  double lo = 0, hi = 0;  // the accepted range, in `unit` (both ends included); a text's length
   std::string_view doc;   // one line: what it does
   bool required = false;  // the configuration must write it (else: the declared default)
 };
@@ -94,12 +96,22 @@ struct Choice {
   std::array<Option<E>, N> options;
 };
 
-// A duration as the configuration writes it (integer milliseconds or seconds) and back.
-constexpr Nanos to_nanos(double value, Unit u) {
-  return static_cast<Nanos>(value * (u == Unit::kMillisecond ? 1e6 : 1e9));
+// A map nested in a section (`watchdog.device`, `base_calibration.board`): a struct with
+// a Visit() of its own, read, checked and described as its own keys under `key`.
+template <typename T>
+struct Section {
+  T& value;
+};
+
+// Whether a duration's unit is written as an integer (ms, us) rather than a number (s).
+constexpr bool integer_duration(Unit u) { return u == Unit::kMillisecond || u == Unit::kMicrosecond; }
+
+// A duration as the configuration writes it (integer micro- or milliseconds, or seconds)
+// and back.
+constexpr double nanos_per(Unit u) {
+  return u == Unit::kMicrosecond ? 1e3 : u == Unit::kMillisecond ? 1e6 : 1e9;
 }
-constexpr double from_nanos(Nanos value, Unit u) {
-  return static_cast<double>(value) / (u == Unit::kMillisecond ? 1e6 : 1e9);
-}
+constexpr Nanos to_nanos(double value, Unit u) { return static_cast<Nanos>(value * nanos_per(u)); }
+constexpr double from_nanos(Nanos value, Unit u) { return static_cast<double>(value) / nanos_per(u); }
 
 }  // namespace markcell

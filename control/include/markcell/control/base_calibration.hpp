@@ -14,12 +14,21 @@
 
 #include <Eigen/Geometry>
 
+#include "markcell/common/param.hpp"
+
 namespace markcell::control {
 
 struct BoardGeometry {
   int cols = 9;          // inner corners along the board's x
   int rows = 6;          // ... and along its y
   double square = 0.06;  // m
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"cols", Unit::kNone, 3, 40, "inner corners along the board's x", true}, cols);
+    v(Param{"rows", Unit::kNone, 3, 40, "inner corners along the board's y", true}, rows);
+    v(Param{"square_m", Unit::kMetre, 0.002, 0.5, "the printed squares' side", true}, square);
+  }
 };
 
 // The inner corners in the board frame (z = 0), in the order findChessboardCorners

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "markcell/common/fixed_string.hpp"
+#include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
 #include "markcell/control/exec_clock.hpp"
 #include "markcell/control/faults.hpp"
@@ -46,6 +47,12 @@ struct LaneSpec {
   std::string name;
   int core = -1;      // -1: any core
   int priority = 0;   // SCHED_FIFO priority 1..99; 0: the normal scheduler
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"core", Unit::kNone, -1, 1023, "the core the lane is pinned to; -1: any", true}, core);
+    v(Param{"priority", Unit::kNone, 0, 99, "SCHED_FIFO priority 1..99; 0: the normal scheduler", true}, priority);
+  }
 };
 
 struct TaskSpec {
@@ -66,6 +73,29 @@ struct ExecutiveSpec {
   int degrade_recovery_runs = 10;  // in-budget runs that end a degraded period
   bool lock_memory = true;         // mlockall when permitted
   bool trace = false;              // record every release and completion (tests, rig)
+
+  // The `executive` section's own keys (its lanes and tasks are read as tables by the
+  // configuration loader, which checks them against the cell's task table).
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"base_tick_us", Unit::kMicrosecond, 50, 1'000'000, "the fixed tick every period is a multiple of", true}, tick);
+    v(Param{"lane_stall_ms", Unit::kMillisecond, 1, 60'000, "a lane that has not ticked for this long is stalled", true},
+      lane_stall_limit);
+    v(Param{"supervisor_period_ms", Unit::kMillisecond, 1, 10'000, "how often the supervisor checks the lanes", true},
+      supervisor_period);
+    v(Param{"degrade_recovery_runs", Unit::kNone, 1, 1'000'000, "in-budget runs that end a degraded task's half rate"},
+      degrade_recovery_runs);
+    v(Param{"lock_memory", Unit::kNone, 0, 0, "mlockall at start-up (needs CAP_IPC_LOCK; warned when refused)"},
+      lock_memory);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    if (supervisor_period * 2 > lane_stall_limit)
+      report("supervisor_period_ms", "supervisor_period_ms " + std::to_string(supervisor_period / millis(1)) +
+                                         " must be at most half of lane_stall_ms " +
+                                         std::to_string(lane_stall_limit / millis(1)) +
+                                         ", or a stall could go unseen for too long");
+  }
 };
 // Throws CheckFailed naming the field when the spec is inconsistent (the configuration
 // loader reports the same conditions with file positions before it gets here).

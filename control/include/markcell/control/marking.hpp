@@ -22,6 +22,7 @@
 #include <Eigen/Geometry>
 
 #include "markcell/common/fixed_string.hpp"
+#include "markcell/common/fixed_vector.hpp"
 #include "markcell/common/param.hpp"
 #include "markcell/common/triple_buffer.hpp"
 #include "markcell/control/executive.hpp"
@@ -49,11 +50,9 @@ struct PanelJob {
   std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> mfs_SL{};
   struct Defect {
     int id = 0;
-    int count = 0;
-    std::array<Eigen::Vector3d, kMaxDefectPoints> points_SL{};
+    FixedVector<Eigen::Vector3d, kMaxDefectPoints> points_SL;  // its surface points
   };
-  int defect_count = 0;
-  std::array<Defect, kMaxDefects> defects{};
+  FixedVector<Defect, kMaxDefects> defects;
 };
 
 enum class SkipReason : std::uint8_t {
@@ -97,10 +96,25 @@ struct PanelResult {
   bool fault = false;
   FixedString<119> reason;  // when fault
   Intercalibration intercalibration;
-  int defect_count = 0;
-  std::array<DefectResult, kMaxDefects> defects{};
+  FixedVector<DefectResult, kMaxDefects> defects;  // one per defect of the record, in its order
   Nanos started = 0, finished = 0;
   Nanos planned_at = -1;  // when the plan was made (-1: never, the panel ended first)
+
+  // The panel's defects counted by outcome: the one count the journal, the replay's
+  // progress, the report and the tests use.
+  // (A pulse cut short is both: sprayed, and skipped with that reason.)
+  struct Tally {
+    int sprayed = 0;
+    int skipped = 0;  // with a reason
+  };
+  Tally tally() const {
+    Tally t;
+    for (const DefectResult& d : defects) {
+      t.sprayed += d.sprayed ? 1 : 0;
+      t.skipped += d.skipped != SkipReason::kNone ? 1 : 0;
+    }
+    return t;
+  }
 };
 
 // The marking sequence's parameters. The ones in Visit() are the configuration's

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <string>
 
+#include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
 
 namespace markcell::drivers {
@@ -28,6 +29,18 @@ struct CameraSettings {
   TriggerMode trigger = TriggerMode::kHardware;
   std::string trigger_line = "Line0";
   int buffers = 8;
+
+  // The keys `devices.cameras` gives both cameras of the pair (the id is per camera).
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"width", Unit::kPixel, 16, 16384, "image width", true}, width);
+    v(Param{"height", Unit::kPixel, 16, 16384, "image height", true}, height);
+    v(Param{"fps", Unit::kNone, 0.1, 1000.0, "frames a second (free running) or the expected trigger rate", true}, fps);
+    v(Param{"exposure_us", Unit::kNone, 1.0, 1e6, "exposure time in microseconds", true}, exposure_us);
+    v(Param{"gain_db", Unit::kNone, 0.0, 48.0, "analogue gain in dB"}, gain_db);
+    v(Param{"trigger", Unit::kNone, 0, 0, "hardware: both cameras on the trigger line; software", true},
+      Choice<TriggerMode, 2>{trigger, {{{"software", TriggerMode::kSoftware}, {"hardware", TriggerMode::kHardware}}}});
+  }
 };
 
 struct FrameView {

@@ -8,6 +8,9 @@
 // kHeartbeatLost. Set-points: TARGET_POSITION, TARGET_ROTATION, TARGET_TIME, then SYNC.
 // Error frames are counted; bus-off is reported until the controller restarts.
 #include <array>
+#include <string>
+
+#include "markcell/common/param.hpp"
 
 #include "markcell/drivers/arm.hpp"
 #include "markcell/drivers/can_bus.hpp"
@@ -16,12 +19,31 @@
 
 namespace markcell::drivers {
 
+// `devices.arm.can` (with the bus's interface, host/config.hpp): declared here, once.
 struct CanArmLinkConfig {
   std::uint8_t node_id = 2;
   std::uint8_t controller_node_id = 1;
   Nanos heartbeat_period = millis(50);
   Nanos heartbeat_timeout = millis(150);
   bool fd = false;  // set-points and states as single CAN FD frames (TARGET_FD, TOOL_FD)
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"node_id", Unit::kNone, 1, 127, "the arm's CANopen node id", true}, node_id);
+    v(Param{"controller_node_id", Unit::kNone, 1, 127, "markcell's own node id", true}, controller_node_id);
+    v(Param{"heartbeat_ms", Unit::kMillisecond, 1, 65'535, "markcell's heartbeat period", true}, heartbeat_period);
+    v(Param{"heartbeat_timeout_ms", Unit::kMillisecond, 1, 65'535, "no heartbeat of the arm's this long: link lost", true},
+      heartbeat_timeout);
+    v(Param{"fd", Unit::kNone, 0, 0, "set-points and states as single CAN FD frames"}, fd);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    if (node_id == controller_node_id)
+      report("controller_node_id", "controller_node_id must differ from node_id " + std::to_string(node_id));
+    if (heartbeat_timeout <= heartbeat_period)
+      report("heartbeat_timeout_ms", "heartbeat_timeout_ms " + std::to_string(heartbeat_timeout / millis(1)) +
+                                         " must exceed heartbeat_ms " + std::to_string(heartbeat_period / millis(1)));
+  }
 };
 
 class CanArmLink final : public ArmLink {

@@ -7,6 +7,7 @@
 #include <string>
 #include <string_view>
 
+#include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
 
 namespace markcell::drivers {
@@ -14,6 +15,12 @@ namespace markcell::drivers {
 struct WatchdogDeviceConfig {
   std::string path = "/dev/watchdog";
   int timeout_s = 0;  // 0: keep the device's own timeout; else WDIOC_SETTIMEOUT
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"path", Unit::kNone, 1, 255, "the watchdog device", true}, path);
+    v(Param{"timeout_s", Unit::kNone, 0, 3600, "the device's timeout in seconds; 0 keeps its own", true}, timeout_s);
+  }
 };
 
 class WatchdogDevice {

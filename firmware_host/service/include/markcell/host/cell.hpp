@@ -37,7 +37,6 @@ TaskTable task_catalog();
 enum class ClockKind { kReal, kSimulated };
 
 // The arm link's pieces as configured, shared by the cell and calibrate-base.
-drivers::CanArmLinkConfig can_link_config(const CanConfig& c);
 drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm);
 // One camera's driver settings from the configuration's cameras section (the cell's
 // camera frame source, record and calibrate-base).

@@ -13,6 +13,11 @@
 
 #include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
+#include "markcell/drivers/camera.hpp"
+#include "markcell/drivers/can_arm_link.hpp"
+#include "markcell/drivers/serial_arm_link.hpp"
+#include "markcell/drivers/watchdog_device.hpp"
+#include "markcell/control/base_calibration.hpp"
 #include "markcell/control/executive.hpp"
 #include "markcell/control/line_role.hpp"
 #include "markcell/control/marking.hpp"
@@ -53,8 +58,15 @@ using control::to_string;
 struct GpioLineConfig {
   std::string line;        // line name as the kernel knows it (gpioinfo), or a number
   bool active_low = false;
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"line", Unit::kNone, 1, 255, "the line's name as the kernel knows it (gpioinfo), or its number", true}, line);
+    v(Param{"active_low", Unit::kNone, 0, 0, "the wiring inverts the level"}, active_low);
+  }
 };
 
+// `devices.gpio`; its `lines` (one GpioLineConfig per LineRole) are read as a table.
 struct GpioConfig {
   bool simulated = true;
   std::string chip;        // chip name (gpiochip0), label, or path under /dev
@@ -63,26 +75,33 @@ struct GpioConfig {
   // pulse shorter than this is ignored, a level that lasts it counts. The valve's own
   // interlock on panel present is not filtered.
   Nanos input_filter = millis(3);
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"simulated", Unit::kNone, 0, 0, "false: the libgpiod chip below", true}, simulated);
+    v(Param{"chip", Unit::kNone, 1, 255, "name, label or /dev path of the GPIO chip", true}, chip);
+    v(Param{"input_filter_us", Unit::kMicrosecond, 0, 100'000, "PLC inputs' debounce: shorter pulses are ignored"},
+      input_filter);
+  }
 };
 
 enum class ArmTransport : std::uint8_t { kSimulated, kCan, kSerial };
 std::string_view to_string(ArmTransport t);
 
+// `devices.arm.can`: the bus's interface here, the link's parameters in the driver.
 struct CanConfig {
   std::string interface = "can0";
-  int node_id = 2;               // the arm's CANopen node id
-  int controller_node_id = 1;    // ours
-  Nanos heartbeat_period = millis(50);
-  Nanos heartbeat_timeout = millis(150);
-  bool fd = false;
-};
+  drivers::CanArmLinkConfig link;
 
-struct SerialConfig {
-  std::string device = "/dev/ttyS1";
-  int baud = 115200;
-  Nanos ack_timeout = millis(20);
-  int retries = 3;
-  Nanos state_timeout = millis(150);  // the arm's STATE (its heartbeat) silent this long: link lost
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"interface", Unit::kNone, 1, 15, "the SocketCAN interface (IFNAMSIZ - 1 characters at most)", true}, interface);
+    link.Visit(v);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    link.validate(report);
+  }
 };
 
 // `devices.arm.limits`. The planner's model (control::ArmTimingModel) owns the
@@ -111,7 +130,7 @@ struct ArmLimitsConfig {
 struct ArmConfig {
   ArmTransport transport = ArmTransport::kSimulated;
   CanConfig can;
-  SerialConfig serial;
+  drivers::SerialArmLinkConfig serial;
   ArmLimitsConfig limits;
 };
 
@@ -140,31 +159,69 @@ struct SprayConfig {
 };
 
 enum class CameraSource : std::uint8_t { kSimulated, kAravis, kRecording };
-enum class CameraTrigger : std::uint8_t { kSoftware, kHardware };
+using CameraTrigger = drivers::TriggerMode;
 std::string_view to_string(CameraSource s);
 std::string_view to_string(CameraTrigger t);
 
-struct CameraConfig {
+// `devices.cameras`: the pair's source and ids here, what both cameras are set to in the
+// driver's CameraSettings (its id and line left to the cell); `recording` is read by
+// hand (a folder that must exist).
+struct CameraConfig : drivers::CameraSettings {
   CameraSource source = CameraSource::kSimulated;
   std::string left_id;
   std::string right_id;
-  int width = 640;
-  int height = 480;
-  double fps = 30.0;
-  double exposure_us = 4000.0;
-  double gain_db = 0.0;
-  CameraTrigger trigger = CameraTrigger::kHardware;
   Nanos latency = millis(15);  // exposure to frame in memory (transfer); replayed frames arrive this late
   Nanos lost_after = millis(1500);  // a live camera with no frame for this long is reported lost and reconnected
   std::string recording;       // source: recording; absolute
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"source", Unit::kNone, 0, 0, "simulated | aravis | recording", true},
+      Choice<CameraSource, 3>{source,
+                              {{{"simulated", CameraSource::kSimulated},
+                                {"aravis", CameraSource::kAravis},
+                                {"recording", CameraSource::kRecording}}}});
+    v(Param{"left_id", Unit::kNone, 1, 255, "the left camera's Aravis device id (required with aravis)"}, left_id);
+    v(Param{"right_id", Unit::kNone, 1, 255, "the right camera's Aravis device id (required with aravis)"}, right_id);
+    CameraSettings::Visit(v);
+    v(Param{"latency_ms", Unit::kMillisecond, 0, 1000, "exposure to frame in memory; replayed frames arrive this late"},
+      latency);
+    v(Param{"lost_after_ms", Unit::kMillisecond, 100, 60'000, "a live camera with no frame this long is lost"},
+      lost_after);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    if (source == CameraSource::kAravis) {
+      if (left_id.empty()) report("left_id", "missing required key 'left_id' (source: aravis)");
+      if (right_id.empty()) report("right_id", "missing required key 'right_id' (source: aravis)");
+    }
+    if (!left_id.empty() && left_id == right_id) report("right_id", "right_id must differ from left_id '" + left_id + "'");
+    if (fps > 0 && exposure_us > 1e6 / fps)
+      report("exposure_us", "exposure longer than the frame period at the configured fps");
+  }
 };
 
 struct WatchdogConfig {
   bool systemd = true;
   Nanos systemd_interval = millis(100);  // when systemd gives no WATCHDOG_USEC
-  bool device = false;
-  std::string device_path = "/dev/watchdog";
-  int device_timeout_s = 10;
+  struct Device {
+    bool enabled = false;
+    drivers::WatchdogDeviceConfig config;
+    template <class V>
+    void Visit(V& v) {
+      v(Param{"enabled", Unit::kNone, 0, 0, "the hardware watchdog: the device resets the machine if not fed", true},
+        enabled);
+      config.Visit(v);
+    }
+  } device;
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"systemd", Unit::kNone, 0, 0, "READY=1, WATCHDOG=1 (only while all lanes tick), STOPPING=1", true}, systemd);
+    v(Param{"systemd_interval_ms", Unit::kMillisecond, 10, 600'000, "feed interval when systemd gives none"},
+      systemd_interval);
+    v(Param{"device", Unit::kNone, 0, 0, "the hardware watchdog device", true}, Section<Device>{device});
+  }
 };
 
 enum class ArmSafeAction : std::uint8_t { kHold, kHome };
@@ -178,12 +235,27 @@ struct SafeStopConfig {
   // (the arm sent home first), or `never` (a restart of the service).
   RearmConfig rearm = RearmConfig::kCycleEnable;
   bool plc_fault_line = true;  // raise the PLC fault output on every safe stop
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"arm", Unit::kNone, 0, 0, "what the arm does on a safe stop", true},
+      Choice<ArmSafeAction, 2>{arm, {{{"hold", ArmSafeAction::kHold}, {"home", ArmSafeAction::kHome}}}});
+    v(Param{"plc_fault_line", Unit::kNone, 0, 0, "raise plc_fault on every safe stop", true}, plc_fault_line);
+    v(Param{"rearm", Unit::kNone, 0, 0, "after an e-stop: cycle_enable (released, then an edge) or never (restart)"},
+      Choice<RearmConfig, 2>{rearm, {{{"cycle_enable", RearmConfig::kCycleEnable}, {"never", RearmConfig::kNever}}}});
+  }
 };
 
+// `panel_types.NAME`; its `file` is read by hand (a file that must exist, and parse).
 struct PanelTypeConfig {
   std::string name;
   int macro_features = 10;
   std::string file;  // the panel type's MFs and templates (markcell select-mfs); absolute
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"macro_features", Unit::kNone, 3, 16, "how many MFs the panel type's file has", true}, macro_features);
+  }
 };
 
 struct CalibrationPaths {
@@ -195,16 +267,25 @@ struct CalibrationPaths {
 // A pose is [x, y, z] in metres and a rotation vector [rx, ry, rz] in degrees, both in
 // the base frame (the arm link's tool-pose convention).
 using PoseSix = std::array<double, 6>;
+// Its `X_Tool_Board` and `poses` (six numbers each) are read by hand.
 struct BaseCalibrationConfig {
-  int board_cols = 9;           // inner corners
-  int board_rows = 6;
-  double square_m = 0.06;
+  control::BoardGeometry board;
   PoseSix X_Tool_Board{-0.24, -0.15, 0.02, 0, 0, 0};  // the board's first inner corner on the tool
   std::vector<PoseSix> poses;   // at least 6; 15 or more recommended
   double max_rms_mm = 2.0;      // refuse to write a fit above these
   double max_abs_mm = 6.0;
   Nanos move_timeout = seconds(15);  // per pose: in position within this, or the pose is skipped
   Nanos settle = millis(300);        // in position this long before the picture
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"board", Unit::kNone, 0, 0, "the checkerboard on the gripper"}, Section<control::BoardGeometry>{board});
+    v(Param{"max_rms_mm", Unit::kNone, 0.01, 100.0, "the fit is refused above this RMS residual per axis, in mm"},
+      max_rms_mm);
+    v(Param{"max_abs_mm", Unit::kNone, 0.01, 500.0, "... or above this largest residual, in mm"}, max_abs_mm);
+    v(Param{"move_timeout_s", Unit::kSecond, 0.1, 600.0, "a pose not reached within this is skipped"}, move_timeout);
+    v(Param{"settle_ms", Unit::kMillisecond, 0, 60'000, "in position this long before the picture"}, settle);
+  }
 };
 
 struct CellConfig {

@@ -1,0 +1,242 @@
+#include "markcell/host/service_loop.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <iostream>
+
+#include "markcell/common/log_escape.hpp"
+
+namespace markcell::host {
+namespace {
+
+void print_faults(control::FaultLog& log) {
+  control::Fault f;
+  int shown = 0;
+  while (log.pop(f)) {
+    if (shown++ == 0) std::cout << "\nfaults:\n";
+    std::printf("  t=%.6f s  %-14s %-16s %s\n", to_seconds(f.time), std::string(control::to_string(f.code)).c_str(),
+                f.source.c_str(), f.detail.c_str());
+  }
+  if (log.dropped() > 0) std::printf("  (%llu faults dropped: the log was full)\n", static_cast<unsigned long long>(log.dropped()));
+}
+
+}  // namespace
+
+void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records) {
+  const ResultsFile::History h = results.history();
+  if (records != nullptr)
+    for (const auto& id : h.panel_ids) records->remember(id);
+  for (const auto& id : h.unfinished) {
+    results.append(ResultsFile::interrupted_json(cell, id));
+    std::fprintf(stderr, "<3>markcell: panel=%s result=fault reason=\"interrupted: markcell stopped after accepting its record and before its result\"\n",
+                 escape_log(id).c_str());
+  }
+}
+
+ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions options)
+    : config_(config), cell_(cell), options_(std::move(options)), script_(options_.plc_events) {
+  if (!config.results_file.empty() && cell.marking() != nullptr) results_ = std::make_unique<ResultsFile>(config.results_file);
+  if (!config.record_folder.empty() && cell.marking() != nullptr)
+    records_ = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
+  if (results_) close_interrupted(*results_, config.name, records_.get());
+}
+
+ServiceLoop::~ServiceLoop() = default;
+
+// Each finished panel: its result appended and synced, then acknowledged so that the
+// marking sequence tells the PLC; one journald line per panel.
+void ServiceLoop::collect() {
+  control::MarkingSequence* m = cell_.marking();
+  if (m == nullptr || m->panels_completed() == written_) return;
+  m->results().update();
+  const control::PanelResult& r = m->results().read();
+  bool late = false;  // the PLC heard fault before the line reached the disk
+  if (results_) {
+    try {
+      results_->append(ResultsFile::to_json(r, config_.name));
+      if (!m->acknowledge_result(r.serial)) {
+        late = true;
+        results_->append(ResultsFile::late_json(config_.name, r.serial, std::string(r.panel_id.view())));
+      }
+    } catch (const std::exception& e) {
+      late = true;  // never acknowledged: the sequence's wait runs out, the PLC hears fault
+      std::fprintf(stderr, "<3>markcell: %s (the PLC gets fault)\n", escape_log(e.what()).c_str());
+    }
+  }
+  const auto [sprayed, skipped] = r.tally();
+  const bool fault = r.fault || late;
+  std::fprintf(stderr, "%smarkcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"\n", fault ? "<3>" : "<6>",
+               escape_log(r.panel_id.view()).c_str(), fault ? "fault" : "done", sprayed, skipped,
+               late ? "results file not written in time" : escape_log(r.reason.view()).c_str());
+  written_ = r.serial;
+}
+
+// Every fault as it is recorded: one journald line each (the stop's own are listed at the end).
+void ServiceLoop::log_faults() {
+  control::Fault f;
+  while (cell_.faults().pop(f))
+    std::fprintf(stderr, "<3>markcell: fault t=%.6f code=%s source=%s detail=\"%s\"\n", to_seconds(f.time),
+                 std::string(control::to_string(f.code)).c_str(), escape_log(f.source.view()).c_str(),
+                 escape_log(f.detail.view()).c_str());
+}
+
+// Inspection records from the drop folder, one at a time into the marking sequence; a
+// rejected one is logged and recorded in the results file with its reason.
+void ServiceLoop::take_records(Nanos now) {
+  if (!records_) return;
+  std::vector<RecordEvent> events;
+  try {
+    events = records_->poll([&](const control::PanelJob& job) {
+      // The accepted line is on disk before the panel can start, so a crash from here
+      // on leaves a trace the next start answers (close_interrupted).
+      if (!cell_.marking()->can_offer()) return false;
+      if (results_)
+        results_->append(ResultsFile::accepted_json(config_.name, records_->offering(), std::string(job.panel_id.view())));
+      return cell_.marking()->offer_job(job);
+    }, now);
+  } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
+    std::fprintf(stderr, "<3>markcell: record folder %s: %s\n", escape_log(records_->folder()).c_str(), escape_log(e.what()).c_str());
+    return;
+  }
+  for (const RecordEvent& ev : events) {
+    if (ev.kind == RecordEvent::Kind::kAccepted) {
+      std::fprintf(stderr, "<6>markcell: record panel=%s accepted (%s)\n", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str());
+      continue;
+    }
+    std::fprintf(stderr, "<3>markcell: record rejected: %s (moved to %s)\n", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str());
+    if (results_) {
+      try {
+        results_->append(ResultsFile::rejected_json(config_.name, ev.file, ev.panel_id, ev.reason));
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
+      }
+    }
+  }
+}
+
+// The scripted PLC: every event due by `elapsed` (since the start) applied, in order.
+void ServiceLoop::apply_plc_events(Nanos elapsed) {
+  script_.apply_due(elapsed, [&](const sim::PlcEvent& ev) {
+    cell_.drive_sim_input(ev.line, ev.level);
+    std::fprintf(stderr, "<6>markcell: plc-script t=%.3f s %s=%d\n", to_seconds(ev.at), std::string(to_string(ev.line)).c_str(),
+                 ev.level ? 1 : 0);
+  });
+}
+
+Nanos ServiceLoop::next_event_after(Nanos elapsed) { return script_.until_next(elapsed, kNanosPerSecond); }
+
+// The service's state in systemd's status line, and the exit on a fault of the cell
+// itself: a stop the PLC caused waits for its re-arm (docs/safety.md); any other stop
+// (a lane stall, an overrun, a device or task fault) ends the process with exit 1,
+// so that systemd's Restart=on-failure brings the cell up anew.
+bool ServiceLoop::watch_safety() {
+  control::SafeStop& stop = cell_.safe_stop();
+  std::string status;
+  if (stop.done()) {
+    const control::Fault& why = stop.reason();
+    status = "safe stop (" + std::string(control::to_string(why.code)) + ", " + why.source.c_str() + ": " + why.detail.c_str() +
+             ")" + (stop.internal_fault() ? ": exiting for a restart"
+                    : config_.safe_stop.rearm == RearmConfig::kNever ? ": restart the service to re-arm"
+                    : stop.rearm_requested() ? ": re-arming, the arm going home"
+                                             : ": waiting for the e-stop's release, then a cycle-enable edge");
+  } else {
+    const control::MarkingSequence* m = cell_.marking();
+    status = "running";
+    if (m != nullptr) status += ": marking " + std::string(control::to_string(m->state())) + ", " + std::to_string(m->panels_completed()) + " panel(s)";
+  }
+  if (status != status_shown_) {
+    if (config_.watchdog.systemd) cell_.notifier().status(status);
+    if (stop.done() || status_shown_.rfind("safe stop", 0) == 0)
+      std::fprintf(stderr, "%smarkcell: %s\n", stop.done() ? "<4>" : "<6>", escape_log(status).c_str());
+    status_shown_ = status;
+  }
+  return stop.done() && stop.internal_fault();
+}
+
+void ServiceLoop::run_simulated() {
+  const Nanos start = cell_.sim_clock()->global_now();
+  const Nanos end = start + static_cast<Nanos>(options_.seconds * 1e9);
+  apply_plc_events(0);
+  for (Nanos t = start; t < end;) {
+    // Steps of 100 ms, cut at the script's events so each lands on its own time.
+    t = std::min({end, t + millis(100), t + std::max<Nanos>(1, next_event_after(t - start))});
+    if (cell_.sim_clock()->run_until(t) == control::SimClock::RunResult::kWedged) {
+      stop_reason_ = "simulation wedged";
+      break;
+    }
+    apply_plc_events(t - start);
+    collect();
+    log_faults();
+    take_records(t);
+    if (watch_safety()) {
+      stop_reason_ = "a fault of the cell";
+      exit_code_ = kExitRuntime;
+      break;
+    }
+  }
+}
+
+void ServiceLoop::run_real(const sigset_t& signals) {
+  const Nanos start = monotonic_now();
+  const Nanos end = options_.seconds > 0 ? start + static_cast<Nanos>(options_.seconds * 1e9) : 0;
+  for (;;) {
+    // Bounded wait: wakes at once on a signal, at least every 50 ms otherwise.
+    apply_plc_events(monotonic_now() - start);
+    collect();
+    log_faults();
+    take_records(monotonic_now());
+    if (watch_safety()) {
+      stop_reason_ = "a fault of the cell";
+      exit_code_ = kExitRuntime;
+      // A stalled lane may never finish its tick: the outputs are safe already (the
+      // safe stop drove them), the results are written; the process ends here.
+      if (cell_.safe_stop().reason().code == control::FaultCode::kLaneStall) {
+        std::fprintf(stderr, "<3>markcell: stopped (lane stall: %s), exit 1 without waiting for the lanes\n",
+                     escape_log(cell_.safe_stop().reason().detail.view()).c_str());
+        std::fflush(stderr);
+        std::_Exit(kExitRuntime);
+      }
+      break;
+    }
+    Nanos wait = options_.seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
+    if (wait <= 0) break;
+    if (wait > millis(50)) wait = millis(50);  // results are written within 50 ms of a panel's end
+    wait = std::max<Nanos>(1, std::min(wait, next_event_after(monotonic_now() - start)));
+    const timespec ts = to_timespec(wait);
+    const int sig = sigtimedwait(&signals, nullptr, &ts);
+    if (sig == SIGTERM || sig == SIGINT) {
+      stop_reason_ = sig == SIGTERM ? "SIGTERM" : "SIGINT";
+      break;
+    }
+  }
+}
+
+void ServiceLoop::start() {
+  const bool simulated = options_.clock == ClockKind::kSimulated;
+  cell_.start();
+  for (const auto& w : cell_.privilege_warnings()) std::cerr << "<4>markcell: warning: " << w << "\n";
+  std::fprintf(stderr, "<6>markcell: cell '%s' running on the %s clock", config_.name.c_str(), simulated ? "simulated" : "real");
+  if (options_.seconds > 0) std::fprintf(stderr, " for %g s", options_.seconds);
+  std::fprintf(stderr, "\n");
+}
+
+int ServiceLoop::run(const sigset_t& signals) {
+  const bool simulated = options_.clock == ClockKind::kSimulated;
+  if (simulated) run_simulated();
+  else run_real(signals);
+  cell_.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason_);
+  collect();
+  if (results_) {
+    try {
+      close_interrupted(*results_, config_.name, nullptr);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
+    }
+  }
+  std::fprintf(stderr, "<6>markcell: stopped (%s)\n", stop_reason_.c_str());
+  std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n" << cell_.executive().timing_report();
+  print_faults(cell_.faults());
+  return exit_code_;
+}
+
+}  // namespace markcell::host

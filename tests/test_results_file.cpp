@@ -132,3 +132,32 @@ TEST_CASE("the results file removed or replaced by a folder while running: a fau
   results.append(line_of(4));
   CHECK(test::read_file(path) == line_of(4) + "\n");
 }
+
+// Each line is JSON a standard parser reads (nlohmann-json's, as any consumer's would):
+// the panel's result with its defects, and text the cell did not make (a record's file
+// name in the drop folder may hold any bytes, a reason any characters) escaped or
+// replaced, never a line that does not parse and never a result lost to its text.
+TEST_CASE("results lines parse as JSON whatever bytes their text holds") {
+  control::PanelResult r;
+  r.serial = 7;
+  r.panel_id.assign("door-7");
+  r.started = seconds(12) + micros(345'678);  // 12.3457 s at the file's 0.1 ms
+  r.fault = true;
+  r.reason.assign("quote \" backslash \\ tab \t newline \n");
+  control::DefectResult* d = r.defects.emplace_back();
+  REQUIRE(d != nullptr);
+  d->id = 4;
+  d->sprayed = true;
+  d->spray_requested = seconds(13);
+  const auto line = ResultsFile::to_json(r, "cell-a");
+  CHECK(line.find('\n') == std::string::npos);  // one line
+  const auto j = test::parse_json(line);
+  CHECK(j["cell"] == "cell-a");
+  CHECK(j["panel"] == 7);
+  CHECK(j["started_s"] == 12.3457);
+  CHECK(j["reason"] == "quote \" backslash \\ tab \t newline \n");
+  CHECK(j["defects"][0] == nlohmann::ordered_json{{"id", 4}, {"sprayed", true}, {"spray_s", 13.0}});
+  const auto rejected = test::parse_json(ResultsFile::rejected_json("cell-a", "/drop/bad\xff\xfe.yaml", "", "not UTF-8 \x01"));
+  CHECK(rejected["record"] == "/drop/bad\xEF\xBF\xBD\xEF\xBF\xBD.yaml");  // each bad byte U+FFFD
+  CHECK(rejected["rejected"] == "not UTF-8 \x01");
+}

@@ -114,10 +114,13 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done, wit
       CHECK(done);
       CHECK_FALSE(fault);
       const std::string text = read_file(cfg.results_file);
-      CHECK(text.find("\"panel_id\": \"paper-door-1\"") != std::string::npos);
-      CHECK(text.find("\"fault\": false") != std::string::npos);
-      CHECK(text.find("{\"id\": 3, \"sprayed\": true") != std::string::npos);
       CHECK(text.back() == '\n');
+      const auto line = parse_json(text);
+      CHECK(line["panel_id"] == "paper-door-1");
+      CHECK(line["fault"] == false);
+      REQUIRE(line["defects"].size() == 3);
+      CHECK(line["defects"][2]["id"] == 3);
+      CHECK(line["defects"][2]["sprayed"] == true);
     } else {
       clock.run_until(t + seconds(3));  // past the 2 s the sequence waits for the result
       lines();
@@ -134,9 +137,13 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done, wit
       lines();
       CHECK_FALSE(done);  // the PLC's answer stands
       CHECK(fault);
-      const std::string text = read_file(cfg.results_file);
-      const auto last = text.rfind("{\"cell\"");
-      CHECK(text.substr(last).find("\"panel_id\": \"paper-door-1\", \"late\": true, \"fault\": true") != std::string::npos);
+      const auto written = lines_of(read_file(cfg.results_file));
+      REQUIRE(written.size() >= 2);  // the result, then the late line last
+      CHECK(parse_json(written[written.size() - 2])["panel_id"] == "paper-door-1");
+      const auto last = parse_json(written.back());
+      CHECK(last["panel_id"] == "paper-door-1");
+      CHECK(last["late"] == true);
+      CHECK(last["fault"] == true);
     }
     cell.shutdown(control::FaultCode::kShutdown, "test", "done");
   }
@@ -394,11 +401,18 @@ TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder re
   CHECK(std::filesystem::exists(s.drop / "accepted" / "0001.yaml"));
   const auto lines = lines_of(read_file(s.results.string()));
   REQUIRE(lines.size() == 2);
-  CHECK(lines[0] == "{\"cell\": \"marking-station-sim\", \"record\": \"" + (s.drop / "accepted" / "0001.yaml").string() +
-                        "\", \"panel_id\": \"paper-door-1\", \"accepted\": true}");
-  CHECK(lines[1].find("\"panel_id\": \"paper-door-1\"") != std::string::npos);
-  CHECK(lines[1].find("\"fault\": false") != std::string::npos);
-  for (int id = 1; id <= 3; ++id) CHECK(lines[1].find("{\"id\": " + std::to_string(id) + ", \"sprayed\": true") != std::string::npos);
+  CHECK(parse_json(lines[0]) == nlohmann::ordered_json{{"cell", "marking-station-sim"},
+                                                        {"record", (s.drop / "accepted" / "0001.yaml").string()},
+                                                        {"panel_id", "paper-door-1"},
+                                                        {"accepted", true}});
+  const auto result = parse_json(lines[1]);
+  CHECK(result["panel_id"] == "paper-door-1");
+  CHECK(result["fault"] == false);
+  REQUIRE(result["defects"].size() == 3);
+  for (int id = 1; id <= 3; ++id) {
+    CHECK(result["defects"][static_cast<std::size_t>(id - 1)]["id"] == id);
+    CHECK(result["defects"][static_cast<std::size_t>(id - 1)]["sprayed"] == true);
+  }
 
   // The next panel's e-stop mid-sequence: the fault logged as it happens, the panel's
   // result a fault with nothing sprayed after it, the valve closed.
@@ -416,9 +430,10 @@ TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder re
         std::string::npos);
   const auto after_stop = lines_of(read_file(s.results.string()));
   REQUIRE(after_stop.size() == 4);
-  CHECK(after_stop[3].find("\"panel_id\": \"paper-door-2\"") != std::string::npos);
-  CHECK(after_stop[3].find("\"fault\": true") != std::string::npos);
-  CHECK(after_stop[3].find("\"sprayed\": true") == std::string::npos);
+  const auto stopped = parse_json(after_stop[3]);
+  CHECK(stopped["panel_id"] == "paper-door-2");
+  CHECK(stopped["fault"] == true);
+  for (const auto& d : stopped["defects"]) CHECK(d["sprayed"] == false);
 
   // A PLC script with a mistake is refused before anything starts, naming file and line.
   std::ofstream(s.script.string()) << "0.0 plc_panel_present 1\n0.5 plc_panel_presnt 0\n";
@@ -475,10 +490,15 @@ TEST_CASE("killed with SIGKILL mid-panel and restarted: earlier results intact, 
   const auto lines = lines_of(text);
   REQUIRE(lines.size() == 5);
   CHECK(lines[1] == "{\"cell\": \"marking-station-sim\", \"panel\": 2, \"panel_id\": \"do");  // torn, ended, left as it was
-  CHECK(lines[2].find("\"panel_id\": \"paper-door-1\", \"accepted\": true") != std::string::npos);
-  CHECK(lines[3] == "{\"cell\": \"marking-station-sim\", \"panel_id\": \"paper-door-1\", \"interrupted\": true, \"fault\": true, "
-                    "\"reason\": \"markcell stopped after accepting the panel's record and before its result\"}");
-  CHECK(lines[4].find("\"rejected\": ") != std::string::npos);
+  CHECK(parse_json(lines[2])["panel_id"] == "paper-door-1");
+  CHECK(parse_json(lines[2])["accepted"] == true);
+  CHECK(parse_json(lines[3]) == nlohmann::ordered_json{{"cell", "marking-station-sim"},
+                                                       {"panel_id", "paper-door-1"},
+                                                       {"interrupted", true},
+                                                       {"fault", true},
+                                                       {"reason", "markcell stopped after accepting the panel's record and "
+                                                                  "before its result"}});
+  CHECK(parse_json(lines[4]).contains("rejected"));
   CHECK(std::filesystem::exists(s.drop / "rejected" / "0002.yaml"));
 
   // A third start finds nothing left to answer.

@@ -69,12 +69,38 @@ std::string example_config_text(const std::vector<std::pair<std::string, std::st
   return text;
 }
 
+nlohmann::ordered_json parse_json(const std::string& text) {
+  nlohmann::ordered_json j = nlohmann::ordered_json::parse(text, nullptr, false);
+  INFO(text.substr(0, 2000));
+  REQUIRE_FALSE(j.is_discarded());
+  return j;
+}
+
+namespace {
+// Depth first, in document order: the first member named `name`.
+const nlohmann::ordered_json* first_member(const nlohmann::ordered_json& j, const std::string& name) {
+  if (j.is_object()) {
+    for (auto it = j.begin(); it != j.end(); ++it) {
+      if (it.key() == name) return &it.value();
+      if (const auto* found = first_member(it.value(), name)) return found;
+    }
+  } else if (j.is_array()) {
+    for (const auto& e : j)
+      if (const auto* found = first_member(e, name)) return found;
+  }
+  return nullptr;
+}
+}  // namespace
+
 double json_number(const std::string& json, const std::string& section, const std::string& key) {
-  const auto s = json.find("\"" + section + "\"");
-  REQUIRE(s != std::string::npos);
-  const auto k = json.find("\"" + key + "\": ", s);
-  REQUIRE(k != std::string::npos);
-  return std::stod(json.substr(k + key.size() + 4));
+  const nlohmann::ordered_json doc = parse_json(json);
+  const nlohmann::ordered_json* s = first_member(doc, section);
+  INFO("section " << section << ", key " << key);
+  REQUIRE(s != nullptr);
+  const nlohmann::ordered_json* v = s->is_object() ? (s->contains(key) ? &(*s)[key] : nullptr) : (key == section ? s : nullptr);
+  REQUIRE(v != nullptr);
+  REQUIRE(v->is_number());
+  return v->get<double>();
 }
 
 }  // namespace markcell::test

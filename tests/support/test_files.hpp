@@ -2,6 +2,8 @@
 // Temporary files and folders for tests, removed when the object goes.
 #include <filesystem>
 #include <string>
+
+#include <nlohmann/json.hpp>
 #include <utility>
 #include <vector>
 
@@ -29,8 +31,12 @@ struct CommandResult {
 };
 CommandResult run_command(const std::string& command);
 
-// The number after "KEY": in a JSON text, the first one after "SECTION" (the rig's
-// report.json); a test failure when either is missing.
+// A JSON text parsed (nlohmann-json, keys in their order); a test failure when it does not parse.
+nlohmann::ordered_json parse_json(const std::string& text);
+// In a JSON text, the first member named SECTION in document order (the rig's report.json
+// lists its predictors' runs in order: the first run's), and in it KEY (SECTION itself
+// when KEY names it: a top-level number); a test failure when either is missing or the
+// value is not a number.
 double json_number(const std::string& json, const std::string& section, const std::string& key);
 
 // Replaces the first `from` in `text` by `to`; a test failure naming `from` when absent.

@@ -1,5 +1,6 @@
 #include "markcell/host/results_file.hpp"
-#include "markcell/host/json.hpp"
+
+#include <nlohmann/json.hpp>
 
 #include "markcell/common/bounded_file.hpp"
 
@@ -8,6 +9,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <algorithm>
@@ -18,41 +20,15 @@
 namespace markcell::host {
 
 namespace {
-std::string quote(std::string_view s) { return json_quote(s); }
-std::string num(double v) { return json_number(v, 4); }
+using Json = nlohmann::ordered_json;  // keys in the order written: a line reads as the docs show it
 
-// The value of `"key": "..."` in one of this file's own lines (json_quote's escapes).
-std::optional<std::string> string_field(std::string_view line, std::string_view key) {
-  const std::string pattern = "\"" + std::string(key) + "\": \"";
-  const std::size_t at = line.find(pattern);
-  if (at == std::string_view::npos) return std::nullopt;
-  std::string value;
-  for (std::size_t i = at + pattern.size(); i < line.size(); ++i) {
-    if (line[i] == '"') return value;
-    if (line[i] == '\\' && i + 1 < line.size()) ++i;
-    value += line[i];
-  }
-  return std::nullopt;  // torn: no closing quote
-}
-// A line that is one whole JSON object: braces and brackets balanced outside strings,
-// closing exactly at its end (a line cut after an inner '}' is not).
-bool whole_json_object(std::string_view line) {
-  if (line.size() < 2 || line.front() != '{') return false;
-  int depth = 0;
-  bool in_string = false;
-  for (std::size_t i = 0; i < line.size(); ++i) {
-    const char c = line[i];
-    if (in_string) {
-      if (c == '\\') ++i;
-      else if (c == '"') in_string = false;
-      continue;
-    }
-    if (c == '"') in_string = true;
-    else if (c == '{' || c == '[') ++depth;
-    else if ((c == '}' || c == ']') && --depth == 0) return i + 1 == line.size();
-  }
-  return false;
-}
+// Seconds with 0.1 ms resolution: the same value always prints the same bytes.
+double seconds4(Nanos t) { return std::round(to_seconds(t) * 1e4) / 1e4; }
+double round4(double v) { return std::isfinite(v) ? std::round(v * 1e4) / 1e4 : v; }
+
+// One line: compact, and bytes that are not UTF-8 (a record's file name can hold any)
+// replaced rather than refused: a result is never lost to its text.
+std::string line_of(const Json& j) { return j.dump(-1, ' ', false, Json::error_handler_t::replace); }
 }  // namespace
 
 ResultsFile::ResultsFile(const std::string& path) : path_(path) { open_file(); }
@@ -136,26 +112,30 @@ void ResultsFile::append(const std::string& line) {
 }
 
 std::string ResultsFile::accepted_json(const std::string& cell, const std::string& record, const std::string& panel_id) {
-  return "{\"cell\": " + quote(cell) + ", \"record\": " + quote(record) + ", \"panel_id\": " + quote(panel_id) +
-         ", \"accepted\": true}";
+  return line_of(Json{{"cell", cell}, {"record", record}, {"panel_id", panel_id}, {"accepted", true}});
 }
 
 std::string ResultsFile::rejected_json(const std::string& cell, const std::string& record, const std::string& panel_id,
                                        const std::string& reason) {
-  return "{\"cell\": " + quote(cell) + ", \"record\": " + quote(record) + ", \"panel_id\": " + quote(panel_id) +
-         ", \"rejected\": " + quote(reason) + "}";
+  return line_of(Json{{"cell", cell}, {"record", record}, {"panel_id", panel_id}, {"rejected", reason}});
 }
 
 std::string ResultsFile::late_json(const std::string& cell, std::uint64_t serial, const std::string& panel_id) {
-  return "{\"cell\": " + quote(cell) + ", \"panel\": " + std::to_string(serial) + ", \"panel_id\": " + quote(panel_id) +
-         ", \"late\": true, \"fault\": true, \"reason\": \"results file not written in time: the result above reached "
-         "the disk after the PLC was told fault\"}";
+  return line_of(Json{{"cell", cell},
+                      {"panel", serial},
+                      {"panel_id", panel_id},
+                      {"late", true},
+                      {"fault", true},
+                      {"reason", "results file not written in time: the result above reached the disk after the PLC was "
+                                 "told fault"}});
 }
 
 std::string ResultsFile::interrupted_json(const std::string& cell, const std::string& panel_id) {
-  return "{\"cell\": " + quote(cell) + ", \"panel_id\": " + quote(panel_id) +
-         ", \"interrupted\": true, \"fault\": true, \"reason\": "
-         "\"markcell stopped after accepting the panel's record and before its result\"}";
+  return line_of(Json{{"cell", cell},
+                      {"panel_id", panel_id},
+                      {"interrupted", true},
+                      {"fault", true},
+                      {"reason", "markcell stopped after accepting the panel's record and before its result"}});
 }
 
 ResultsFile::History ResultsFile::history() const {
@@ -182,14 +162,17 @@ ResultsFile::History ResultsFile::history() const {
     if (end == std::string::npos) break;  // a torn last line counts for nothing
     const std::string_view line(text.data() + start, end - start);
     start = end + 1;
-    // Only a whole line counts: one torn by a crash and ended later is no result.
-    if (!whole_json_object(line)) continue;
-    const auto id = string_field(line, "panel_id");
-    if (!id || line.find("\"rejected\": ") != std::string_view::npos) continue;
-    auto pending = std::find(h.unfinished.begin(), h.unfinished.end(), *id);
-    if (line.find("\"accepted\": true") != std::string_view::npos) {
-      if (pending == h.unfinished.end()) h.unfinished.push_back(*id);
-      h.panel_ids.push_back(*id);
+    // Only a whole line counts: one torn by a crash and ended later does not parse.
+    const Json j = Json::parse(line, nullptr, false);
+    if (j.is_discarded() || !j.is_object()) continue;
+    const auto id = j.find("panel_id");
+    if (id == j.end() || !id->is_string() || j.contains("rejected")) continue;
+    const std::string panel_id = id->get<std::string>();
+    auto pending = std::find(h.unfinished.begin(), h.unfinished.end(), panel_id);
+    const auto accepted = j.find("accepted");
+    if (accepted != j.end() && *accepted == true) {
+      if (pending == h.unfinished.end()) h.unfinished.push_back(panel_id);
+      h.panel_ids.push_back(panel_id);
     } else if (pending != h.unfinished.end()) {
       h.unfinished.erase(pending);  // its result (or its interrupted line)
     }
@@ -198,23 +181,28 @@ ResultsFile::History ResultsFile::history() const {
 }
 
 std::string ResultsFile::to_json(const control::PanelResult& r, const std::string& cell) {
-  std::string o = "{\"cell\": " + quote(cell) + ", \"panel\": " + std::to_string(r.serial) +
-                  ", \"panel_id\": " + quote(r.panel_id.view()) + ", \"started_s\": " + num(to_seconds(r.started)) +
-                  ", \"finished_s\": " + num(to_seconds(r.finished)) + ", \"fault\": " + (r.fault ? "true" : "false") +
-                  ", \"reason\": " + quote(r.reason.view());
   const auto& ic = r.intercalibration;
-  o += ", \"intercalibration\": {\"status\": " + quote(control::to_string(ic.status)) + ", \"macro_features\": " +
-       std::to_string(ic.inliers) + ", \"max_abs_m\": [" + num(ic.max_abs.x()) + ", " + num(ic.max_abs.y()) + ", " +
-       num(ic.max_abs.z()) + "], \"rms_m\": [" + num(ic.rms.x()) + ", " + num(ic.rms.y()) + ", " + num(ic.rms.z()) + "]}";
-  o += ", \"defects\": [";
-  for (int i = 0; i < r.defects.ssize(); ++i) {
-    const auto& d = r.defects[static_cast<std::size_t>(i)];
-    o += std::string(i ? ", " : "") + "{\"id\": " + std::to_string(d.id) + ", \"sprayed\": " + (d.sprayed ? "true" : "false");
-    if (d.sprayed) o += ", \"spray_s\": " + num(to_seconds(d.spray_requested));
-    if (d.skipped != control::SkipReason::kNone) o += ", \"skipped\": " + quote(control::to_string(d.skipped));
-    o += "}";
+  const auto triple = [](const Eigen::Vector3d& v) { return Json::array({round4(v.x()), round4(v.y()), round4(v.z())}); };
+  Json defects = Json::array();
+  for (const control::DefectResult& d : r.defects) {
+    Json o{{"id", d.id}, {"sprayed", d.sprayed}};
+    if (d.sprayed) o["spray_s"] = seconds4(d.spray_requested);
+    if (d.skipped != control::SkipReason::kNone) o["skipped"] = control::to_string(d.skipped);
+    defects.push_back(std::move(o));
   }
-  return o + "]}";
+  return line_of(Json{{"cell", cell},
+                      {"panel", r.serial},
+                      {"panel_id", r.panel_id.view()},
+                      {"started_s", seconds4(r.started)},
+                      {"finished_s", seconds4(r.finished)},
+                      {"fault", r.fault},
+                      {"reason", r.reason.view()},
+                      {"intercalibration",
+                       {{"status", control::to_string(ic.status)},
+                        {"macro_features", ic.inliers},
+                        {"max_abs_m", triple(ic.max_abs)},
+                        {"rms_m", triple(ic.rms)}}},
+                      {"defects", std::move(defects)}});
 }
 
 }  // namespace markcell::host

@@ -537,3 +537,51 @@ TEST_CASE("run as the service: a fault of the cell itself ends it with exit 1 (f
   CHECK(e.output.find("<6>markcell: running: marking idle, 0 panel(s)") != std::string::npos);
   CHECK(e.output.find("<6>markcell: stopped (duration elapsed)") != std::string::npos);
 }
+
+// Under systemd, stderr is journald's stream (JOURNAL_STREAM names it): each line goes as
+// one journal entry with fields, through the native protocol, read here by an independent
+// receiver (tests/support/journal_listener.py) on journald's socket in a mount namespace
+// of the test's own. Nothing is written twice to stderr.
+TEST_CASE("under journald, the service's lines are journal entries with their panel and fault fields") {
+  test::TempDir dir;
+  const ServiceCell s =
+      service_cell(dir, "0.0 plc_panel_present 1\n3.2 plc_panel_present 0\n4.0 plc_estop 1  # after the panel\n");
+  std::filesystem::copy_file(sim_dir() + "/recording/inspection.yaml", s.drop / "0001.yaml");
+  const std::string entries = (dir.path() / "entries.jsonl").string(), err = (dir.path() / "stderr.txt").string();
+  const std::string script =
+      "mount -t tmpfs tmpfs /run || exit 90\n"
+      "python3 " + source_path("tests/support/journal_listener.py") + " " + entries + " 60 & listener=$!\n"
+      "for i in $(seq 200); do [ -e " + entries + ".ready ] && break; sleep 0.05; done\n"
+      ": > " + err + "\n"
+      "JOURNAL_STREAM=$(stat -c %d:%i " + err + ") " + kMarkcell + " run --config " + s.config.string() +
+      " --clock sim --seconds 5 --plc-script " + s.script.string() + " 2>> " + err + "\n"
+      "code=$?\nsleep 0.5\nkill $listener\nexit $code\n";
+  const std::string script_file = dir.write("journal.sh", script);
+  const auto r = run_command("unshare --mount sh " + script_file);
+  INFO(r.output << read_file(err));
+  REQUIRE(r.exit_code == 0);
+  std::vector<nlohmann::ordered_json> got;
+  for (const auto& line : lines_of(read_file(entries))) got.push_back(parse_json(line));
+  const auto find = [&](const std::string& key, const std::string& value) -> const nlohmann::ordered_json* {
+    for (const auto& e : got)
+      if (e.contains(key) && e[key] == value) return &e;
+    return nullptr;
+  };
+  const auto* panel = find("PANEL_RESULT", "done");
+  REQUIRE(panel != nullptr);
+  CHECK((*panel)["PANEL_ID"] == "paper-door-1");
+  CHECK((*panel)["SPRAYED"] == "3");
+  CHECK((*panel)["SKIPPED"] == "0");
+  CHECK((*panel)["PRIORITY"] == "6");
+  CHECK((*panel)["SYSLOG_IDENTIFIER"] == "markcell");
+  CHECK((*panel)["MESSAGE"].get<std::string>().rfind("markcell: panel=paper-door-1 result=done sprayed=3 skipped=0", 0) == 0);
+  const auto* accepted = find("RECORD_FILE", (s.drop / "accepted" / "0001.yaml").string());
+  REQUIRE(accepted != nullptr);
+  CHECK((*accepted)["PANEL_ID"] == "paper-door-1");
+  const auto* fault = find("FAULT_CODE", "operator_stop");
+  REQUIRE(fault != nullptr);
+  CHECK((*fault)["FAULT_SOURCE"] == "plc_estop");
+  CHECK((*fault)["PRIORITY"] == "3");
+  // The same lines are not on stderr too (journald would show each twice).
+  CHECK(read_file(err).find("markcell: panel=") == std::string::npos);
+}

@@ -9,6 +9,15 @@
 namespace markcell::host {
 namespace {
 
+// printf into a string (the service loop's thread: it may allocate).
+template <typename... Args>
+std::string format(const char* fmt, Args... args) {
+  const int n = std::snprintf(nullptr, 0, fmt, args...);
+  std::string out(static_cast<std::size_t>(n > 0 ? n : 0), '\0');
+  std::snprintf(out.data(), out.size() + 1, fmt, args...);
+  return out;
+}
+
 void print_faults(control::FaultLog& log) {
   control::Fault f;
   int shown = 0;
@@ -22,14 +31,17 @@ void print_faults(control::FaultLog& log) {
 
 }  // namespace
 
-void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records) {
+void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records, const Journal& journal) {
   const ResultsFile::History h = results.history();
   if (records != nullptr)
     for (const auto& id : h.panel_ids) records->remember(id);
   for (const auto& id : h.unfinished) {
     results.append(ResultsFile::interrupted_json(cell, id));
-    std::fprintf(stderr, "<3>markcell: panel=%s result=fault reason=\"interrupted: markcell stopped after accepting its record and before its result\"\n",
-                 escape_log(id).c_str());
+    journal.log(3,
+                format("markcell: panel=%s result=fault reason=\"interrupted: markcell stopped after accepting its record "
+                       "and before its result\"",
+                       escape_log(id).c_str()),
+                {{"PANEL_ID", id}, {"PANEL_RESULT", "fault"}, {"REASON", "interrupted"}});
   }
 }
 
@@ -38,7 +50,7 @@ ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions op
   if (!config.results_file.empty() && cell.marking() != nullptr) results_ = std::make_unique<ResultsFile>(config.results_file);
   if (!config.record_folder.empty() && cell.marking() != nullptr)
     records_ = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
-  if (results_) close_interrupted(*results_, config.name, records_.get());
+  if (results_) close_interrupted(*results_, config.name, records_.get(), journal_);
 }
 
 ServiceLoop::~ServiceLoop() = default;
@@ -60,24 +72,35 @@ void ServiceLoop::collect() {
       }
     } catch (const std::exception& e) {
       late = true;  // never acknowledged: the sequence's wait runs out, the PLC hears fault
-      std::fprintf(stderr, "<3>markcell: %s (the PLC gets fault)\n", escape_log(e.what()).c_str());
+      journal_.log(3, format("markcell: %s (the PLC gets fault)", escape_log(e.what()).c_str()),
+                   {{"PANEL_ID", r.panel_id.view()}});
     }
   }
   const auto [sprayed, skipped] = r.tally();
   const bool fault = r.fault || late;
-  std::fprintf(stderr, "%smarkcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"\n", fault ? "<3>" : "<6>",
-               escape_log(r.panel_id.view()).c_str(), fault ? "fault" : "done", sprayed, skipped,
-               late ? "results file not written in time" : escape_log(r.reason.view()).c_str());
+  const std::string_view reason = late ? std::string_view("results file not written in time") : r.reason.view();
+  const std::string sprayed_text = std::to_string(sprayed), skipped_text = std::to_string(skipped);
+  journal_.log(fault ? 3 : 6,
+               format("markcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"", escape_log(r.panel_id.view()).c_str(),
+                      fault ? "fault" : "done", sprayed, skipped, escape_log(reason).c_str()),
+               {{"PANEL_ID", r.panel_id.view()},
+                {"PANEL_RESULT", fault ? "fault" : "done"},
+                {"SPRAYED", sprayed_text},
+                {"SKIPPED", skipped_text},
+                {"REASON", reason}});
   written_ = r.serial;
 }
 
 // Every fault as it is recorded: one journald line each (the stop's own are listed at the end).
 void ServiceLoop::log_faults() {
   control::Fault f;
-  while (cell_.faults().pop(f))
-    std::fprintf(stderr, "<3>markcell: fault t=%.6f code=%s source=%s detail=\"%s\"\n", to_seconds(f.time),
-                 std::string(control::to_string(f.code)).c_str(), escape_log(f.source.view()).c_str(),
-                 escape_log(f.detail.view()).c_str());
+  while (cell_.faults().pop(f)) {
+    const std::string code(control::to_string(f.code));
+    journal_.log(3,
+                 format("markcell: fault t=%.6f code=%s source=%s detail=\"%s\"", to_seconds(f.time), code.c_str(),
+                        escape_log(f.source.view()).c_str(), escape_log(f.detail.view()).c_str()),
+                 {{"FAULT_CODE", code}, {"FAULT_SOURCE", f.source.view()}, {"FAULT_DETAIL", f.detail.view()}});
+  }
 }
 
 // Inspection records from the drop folder, one at a time into the marking sequence; a
@@ -95,20 +118,23 @@ void ServiceLoop::take_records(Nanos now) {
       return cell_.marking()->offer_job(job);
     }, now);
   } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
-    std::fprintf(stderr, "<3>markcell: record folder %s: %s\n", escape_log(records_->folder()).c_str(), escape_log(e.what()).c_str());
+    journal_.log(3, format("markcell: record folder %s: %s", escape_log(records_->folder()).c_str(), escape_log(e.what()).c_str()),
+                 {{"RECORD_FOLDER", records_->folder()}});
     return;
   }
   for (const RecordEvent& ev : events) {
     if (ev.kind == RecordEvent::Kind::kAccepted) {
-      std::fprintf(stderr, "<6>markcell: record panel=%s accepted (%s)\n", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str());
+      journal_.log(6, format("markcell: record panel=%s accepted (%s)", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str()),
+                   {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}});
       continue;
     }
-    std::fprintf(stderr, "<3>markcell: record rejected: %s (moved to %s)\n", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str());
+    journal_.log(3, format("markcell: record rejected: %s (moved to %s)", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str()),
+                 {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}, {"REJECT_REASON", ev.reason}});
     if (results_) {
       try {
         results_->append(ResultsFile::rejected_json(config_.name, ev.file, ev.panel_id, ev.reason));
       } catch (const std::exception& e) {
-        std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
+        journal_.log(3, "markcell: " + escape_log(e.what()));
       }
     }
   }
@@ -118,8 +144,8 @@ void ServiceLoop::take_records(Nanos now) {
 void ServiceLoop::apply_plc_events(Nanos elapsed) {
   script_.apply_due(elapsed, [&](const sim::PlcEvent& ev) {
     cell_.drive_sim_input(ev.line, ev.level);
-    std::fprintf(stderr, "<6>markcell: plc-script t=%.3f s %s=%d\n", to_seconds(ev.at), std::string(to_string(ev.line)).c_str(),
-                 ev.level ? 1 : 0);
+    journal_.log(6, format("markcell: plc-script t=%.3f s %s=%d", to_seconds(ev.at), std::string(to_string(ev.line)).c_str(),
+                           ev.level ? 1 : 0));
   });
 }
 
@@ -147,7 +173,7 @@ bool ServiceLoop::watch_safety() {
   if (status != status_shown_) {
     if (config_.watchdog.systemd) cell_.notifier().status(status);
     if (stop.done() || status_shown_.rfind("safe stop", 0) == 0)
-      std::fprintf(stderr, "%smarkcell: %s\n", stop.done() ? "<4>" : "<6>", escape_log(status).c_str());
+      journal_.log(stop.done() ? 4 : 6, "markcell: " + escape_log(status), {{"CELL_STATE", status}});
     status_shown_ = status;
   }
   return stop.done() && stop.internal_fault();
@@ -191,8 +217,10 @@ void ServiceLoop::run_real(const sigset_t& signals) {
       // A stalled lane may never finish its tick: the outputs are safe already (the
       // safe stop drove them), the results are written; the process ends here.
       if (cell_.safe_stop().reason().code == control::FaultCode::kLaneStall) {
-        std::fprintf(stderr, "<3>markcell: stopped (lane stall: %s), exit 1 without waiting for the lanes\n",
-                     escape_log(cell_.safe_stop().reason().detail.view()).c_str());
+        journal_.log(3,
+                     format("markcell: stopped (lane stall: %s), exit 1 without waiting for the lanes",
+                            escape_log(cell_.safe_stop().reason().detail.view()).c_str()),
+                     {{"FAULT_CODE", "lane_stall"}});
         std::fflush(stderr);
         std::_Exit(kExitRuntime);
       }
@@ -214,10 +242,10 @@ void ServiceLoop::run_real(const sigset_t& signals) {
 void ServiceLoop::start() {
   const bool simulated = options_.clock == ClockKind::kSimulated;
   cell_.start();
-  for (const auto& w : cell_.privilege_warnings()) std::cerr << "<4>markcell: warning: " << w << "\n";
-  std::fprintf(stderr, "<6>markcell: cell '%s' running on the %s clock", config_.name.c_str(), simulated ? "simulated" : "real");
-  if (options_.seconds > 0) std::fprintf(stderr, " for %g s", options_.seconds);
-  std::fprintf(stderr, "\n");
+  for (const auto& w : cell_.privilege_warnings()) journal_.log(4, "markcell: warning: " + escape_log(w));
+  journal_.log(6, format("markcell: cell '%s' running on the %s clock", escape_log(config_.name).c_str(),
+                         simulated ? "simulated" : "real") +
+                      (options_.seconds > 0 ? format(" for %g s", options_.seconds) : std::string()));
 }
 
 int ServiceLoop::run(const sigset_t& signals) {
@@ -228,12 +256,12 @@ int ServiceLoop::run(const sigset_t& signals) {
   collect();
   if (results_) {
     try {
-      close_interrupted(*results_, config_.name, nullptr);
+      close_interrupted(*results_, config_.name, nullptr, journal_);
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "<3>markcell: %s\n", escape_log(e.what()).c_str());
+      journal_.log(3, "markcell: " + escape_log(e.what()));
     }
   }
-  std::fprintf(stderr, "<6>markcell: stopped (%s)\n", stop_reason_.c_str());
+  journal_.log(6, "markcell: stopped (" + stop_reason_ + ")");
   std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n" << cell_.executive().timing_report();
   print_faults(cell_.faults());
   return exit_code_;

@@ -7,8 +7,8 @@
 // itself (exit 1, for Restart=on-failure). Every wait is bounded (50 ms at most), so a
 // result is on disk within 50 ms of its panel's end and a signal is seen at once.
 //
-// The journal's lines (stderr, sd-daemon priority prefixes, every value escaped) are
-// specified in docs/operation.md.
+// Its lines go to the journal with fields, or to stderr with sd-daemon's priority
+// prefixes (journal.hpp); every value escaped in the text. docs/operation.md lists them.
 #include <csignal>
 #include <cstdint>
 #include <memory>
@@ -18,6 +18,7 @@
 #include "markcell/common/time.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/host/journal.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/sim/plc_script.hpp"
@@ -37,7 +38,7 @@ struct ServiceOptions {
 // Every panel whose record was accepted but whose result never came (the process was
 // killed, the power cut, or it stopped before the panel arrived) gets a fault result
 // now, so no accepted panel is without one; the ids seen are duplicates from now on.
-void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records);
+void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records, const Journal& journal);
 
 class ServiceLoop {
  public:
@@ -69,6 +70,7 @@ class ServiceLoop {
   const CellConfig& config_;
   Cell& cell_;
   const ServiceOptions options_;
+  const Journal journal_;
   std::unique_ptr<ResultsFile> results_;
   std::unique_ptr<RecordFolder> records_;
   sim::PlcScript script_;

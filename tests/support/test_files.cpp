@@ -97,7 +97,16 @@ double json_number(const std::string& json, const std::string& section, const st
   const nlohmann::ordered_json* s = first_member(doc, section);
   INFO("section " << section << ", key " << key);
   REQUIRE(s != nullptr);
-  const nlohmann::ordered_json* v = s->is_object() ? (s->contains(key) ? &(*s)[key] : nullptr) : (key == section ? s : nullptr);
+  // SECTION an object: its KEY; a list of objects: the first one's KEY that has one; a
+  // value: itself, when KEY names it.
+  const nlohmann::ordered_json* v = key == section && !s->is_structured() ? s : nullptr;
+  if (s->is_object() && s->contains(key)) v = &(*s)[key];
+  if (s->is_array())
+    for (const auto& e : *s)
+      if (e.is_object() && e.contains(key)) {
+        v = &e[key];
+        break;
+      }
   REQUIRE(v != nullptr);
   REQUIRE(v->is_number());
   return v->get<double>();

@@ -34,9 +34,9 @@ CommandResult run_command(const std::string& command);
 // A JSON text parsed (nlohmann-json, keys in their order); a test failure when it does not parse.
 nlohmann::ordered_json parse_json(const std::string& text);
 // In a JSON text, the first member named SECTION in document order (the rig's report.json
-// lists its predictors' runs in order: the first run's), and in it KEY (SECTION itself
-// when KEY names it: a top-level number); a test failure when either is missing or the
-// value is not a number.
+// lists its predictors' runs in order: the first run's), and in it KEY (in a list of
+// objects, the first that has KEY; SECTION itself when KEY names it and it is a value); a
+// test failure when either is missing or the value is not a number.
 double json_number(const std::string& json, const std::string& section, const std::string& key);
 
 // Replaces the first `from` in `text` by `to`; a test failure naming `from` when absent.

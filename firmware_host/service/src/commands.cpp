@@ -1,0 +1,122 @@
+// The service's subcommands: check-config, config-schema, run.
+#include <signal.h>
+
+#include <iostream>
+#include <memory>
+
+#include "markcell/host/command.hpp"
+#include "markcell/host/service_loop.hpp"
+#include "markcell/sim/plc_script.hpp"
+
+namespace markcell::host {
+namespace {
+
+int check_config_command(const std::string& file) {
+  const auto errors = check_config(file, task_catalog());
+  if (errors.empty()) {
+    std::cout << file << ": valid\n";
+    return 0;
+  }
+  for (const auto& e : errors) std::cerr << e.to_string() << "\n";
+  std::cerr << errors.size() << " error(s) in " << file << "\n";
+  return kExitConfig;
+}
+
+int run_command(const std::string& file, const std::string& clock_name, double seconds, const std::string& plc_script,
+                const sigset_t& signals) {
+  const std::optional<CellConfig> loaded = load_or_report(file);
+  if (!loaded) return kExitConfig;
+  const CellConfig& config = *loaded;
+  std::vector<sim::PlcEvent> plc_events;
+  if (!plc_script.empty()) {
+    if (!config.gpio.simulated) {
+      std::cerr << "markcell: --plc-script drives simulated PLC lines; " << file
+                << " has devices.gpio.simulated: false (the real PLC drives the real lines)\n";
+      return kExitConfig;
+    }
+    try {
+      plc_events = sim::load_plc_script(plc_script);
+    } catch (const std::exception& e) {
+      std::cerr << "markcell: " << e.what() << "\n";
+      return kExitConfig;
+    }
+  }
+  const ClockKind clock = clock_name == "sim" ? ClockKind::kSimulated : ClockKind::kReal;
+  Cell cell(config, clock);
+  std::unique_ptr<ServiceLoop> service;
+  try {
+    service = std::make_unique<ServiceLoop>(config, cell, ServiceOptions{clock, seconds, std::move(plc_events)});
+    service->start();
+  } catch (const std::exception& e) {
+    std::cerr << "markcell: start-up failed: " << e.what() << "\n";
+    return kExitRuntime;
+  }
+  return service->run(signals);
+}
+
+}  // namespace
+
+std::optional<CellConfig> load_or_report(const std::string& file) {
+  try {
+    return load_config(file, task_catalog());
+  } catch (const ConfigInvalid& e) {
+    for (const auto& err : e.errors()) std::cerr << err.to_string() << "\n";
+    std::cerr << e.errors().size() << " error(s) in " << file << "\n";
+    return std::nullopt;
+  }
+}
+
+void add_service_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals) {
+  struct Options {
+    std::string check_file;
+    bool list_tasks = false;
+    std::string run_file;
+    std::string clock_name = "real";
+    double run_seconds = 0;
+    std::string run_plc_script;
+  };
+  const auto o = std::make_shared<Options>();
+
+  auto* check = app.add_subcommand("check-config", "Validate a cell configuration; print every error and exit 2 if any");
+  check->add_option("FILE", o->check_file, "Cell configuration (YAML)");
+  check->add_flag("--tasks", o->list_tasks, "Print the tasks this build provides (a Markdown table) instead");
+  out.push_back({check, [o] {
+                   if (o->list_tasks) {
+                     std::cout << task_table_markdown(task_catalog());
+                     return 0;
+                   }
+                   if (o->check_file.empty()) {
+                     std::cerr << "check-config: FILE is required (or --tasks)\n";
+                     return kExitConfig;
+                   }
+                   return check_config_command(o->check_file);
+                 }});
+
+  auto* schema = app.add_subcommand("config-schema",
+                                    "Print a JSON Schema of the cell configuration (for editors; from the parameters' declarations)");
+  out.push_back({schema, [] {
+                   std::cout << config_schema_json(task_catalog());
+                   return 0;
+                 }});
+
+  auto* run = app.add_subcommand("run", "Run the cell from its configuration until SIGTERM/SIGINT (or --seconds)");
+  run->add_option("--config,-c", o->run_file, "Cell configuration (YAML)")->required();
+  run->add_option("--clock", o->clock_name, "real: CLOCK_MONOTONIC; sim: simulated time, as fast as it computes")
+      ->check(CLI::IsMember({"real", "sim"}));
+  run->add_option("--seconds", o->run_seconds, "Stop after this long (0: until a signal; needed with --clock sim)")
+      ->check(CLI::NonNegativeNumber);
+  run->add_option("--plc-script", o->run_plc_script,
+                  "Simulated GPIO only: drive the PLC inputs from FILE ('SECONDS LINE 0|1' per line, from the start)")
+      ->check(CLI::ExistingFile);
+  out.push_back({run,
+                 [o, stop_signals] {
+                   if (o->clock_name == "sim" && o->run_seconds <= 0) {
+                     std::cerr << "markcell run: --clock sim needs --seconds (simulated time has no signal to stop it)\n";
+                     return kExitConfig;
+                   }
+                   return run_command(o->run_file, o->clock_name, o->run_seconds, o->run_plc_script, stop_signals);
+                 },
+                 true});
+}
+
+}  // namespace markcell::host

@@ -1,0 +1,142 @@
+// The rig's subcommands: sim and replay.
+#include "markcell/rig/commands.hpp"
+
+#include <filesystem>
+#include <iostream>
+#include <memory>
+
+#include "markcell/common/log_escape.hpp"
+#include "markcell/host/service_loop.hpp"
+#include "markcell/host/stop_signal.hpp"
+#include "markcell/rig/render.hpp"
+#include "markcell/rig/replay.hpp"
+#include "markcell/rig/scenario.hpp"
+#include "markcell/sim/plc_script.hpp"
+#include "markcell/vision/calibration_io.hpp"
+
+namespace markcell::rig {
+namespace {
+
+using namespace markcell::host;
+
+int replay_command(const CellConfig& config, const std::string& recording, const std::string& out,
+                   const rig::ReplayOptions& base) {
+  rig::ReplayOptions options = base;
+  options.out_dir = out;
+  const rig::ReplayReport report = rig::replay_recording(config, recording, options);
+  const auto files = rig::write_report(report, config, out);
+  std::cout << rig::report_table(report, files);
+  // Stopped by a signal: the report is written (and marked partial); the exit status is
+  // the shell's for a process ended by that signal.
+  if (!report.stopped.empty() && options.stop != nullptr) return 128 + options.stop->load();
+  return 0;
+}
+
+int sim_command(const CellConfig& config, const std::string& scenario_name, std::uint64_t seed, double seconds_limit,
+                double fps, const std::string& scanner_file, const std::string& out, const rig::ReplayOptions& options,
+                const BoardCalibration& calibrate_board) {
+  rig::Scenario scenario;
+  try {
+    scenario = rig::make_scenario(scenario_name, seed);
+  } catch (const std::invalid_argument& e) {
+    std::cerr << "markcell sim: " << e.what() << "\n";
+    return kExitConfig;
+  }
+  if (scenario.board_only) {
+    const auto o = std::filesystem::path(out);
+    return calibrate_board(config, (o / "base.yaml").string(), seed, (o / "board").string(), out);
+  }
+  const std::filesystem::path recording = std::filesystem::path(out) / "recording";
+  // The folder is the rig's own output: a previous run's recording is replaced.
+  if (std::filesystem::exists(recording / "recording.yaml")) std::filesystem::remove_all(recording);
+  const auto marking = vision::load_stereo_calibration(config.calibration.stereo);
+  const auto scanner = vision::load_stereo_calibration(scanner_file);
+  rig::GenerateOptions g;
+  if (seconds_limit > 0) g.max_duration = static_cast<Nanos>(seconds_limit * 1e9);
+  g.fps = fps;
+  g.stop = options.stop;
+  if (options.progress) std::cerr << "markcell sim: rendering " << scenario_name << " into " << recording.string() << "\n";
+  std::size_t frames = 0;
+  try {
+    frames = rig::generate_recording(scenario, recording.string(), marking, scanner, rig::RenderSettings{}, g);
+  } catch (const rig::GenerationStopped& e) {
+    std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
+    return 128 + e.signal;
+  }
+  if (options.progress) std::cerr << "markcell sim: " << frames << " stereo frames; replaying through the cell\n";
+  return replay_command(config, recording.string(), out, options);
+}
+
+}  // namespace
+
+void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals, BoardCalibration calibrate_board) {
+  struct Options {
+    std::string rig_config = "config/cell.example.yaml", rig_out, sim_scenario, replay_recording, scanner_file;
+    std::uint64_t sim_seed = 1;
+    double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
+    bool one_predictor = false, quiet = false, no_arm = false;
+    std::string rig_plc_script, rig_gpio_sim, rig_arm_serial_peer;
+  };
+  const auto o = std::make_shared<Options>();
+  auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
+  sim->add_option("SCENARIO", o->sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
+      ->required();
+  sim->add_option("--seed", o->sim_seed, "Scenario seed (noise, speed fluctuation, drops)");
+  sim->add_option("--seconds", o->sim_seconds, "Shorten the scenario to this many seconds")->check(CLI::PositiveNumber);
+  sim->add_option("--fps", o->sim_fps, "Frame rate of the generated recording (default: the scenario's, 30)")->check(CLI::PositiveNumber);
+  sim->add_option("--scanner", o->scanner_file, "Inspection scanner calibration (default: calibration/inspection_stereo.yaml next to the config)");
+  auto* replay = app.add_subcommand("replay", "Replay a recording through the cell in simulated time; score it when it has ground truth");
+  replay->add_option("RECORDING", o->replay_recording, "Recording folder (vision/RECORDING.md)")->required()->check(CLI::ExistingDirectory);
+  replay->add_option("--gpio-sim", o->rig_gpio_sim,
+                     "Replay in real time on the configured real devices (libgpiod chip, CAN or serial arm link): the rig's "
+                     "PLC and valve through this gpio-sim chip's sysfs folder, its simulated arm a node on the CAN interface "
+                     "or on the serial line's other end (--arm-serial-peer)")
+      ->check(CLI::ExistingDirectory);
+  replay->add_option("--arm-serial-peer", o->rig_arm_serial_peer,
+                     "With --gpio-sim and an arm on a serial line: the line's other end, where the rig's arm answers "
+                     "(a second port on a null-modem cable, or socat's other pty)")
+      ->needs("--gpio-sim")
+      ->check(CLI::ExistingPath);
+  for (auto* c : {sim, replay}) {
+    c->add_option("--config,-c", o->rig_config, "Cell configuration (YAML)");
+    c->add_option("--out,-o", o->rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
+    c->add_option("--radius-mm", o->radius_mm, "A spray within this of a defect's centre marks it")->check(CLI::PositiveNumber);
+    c->add_flag("--one-predictor", o->one_predictor, "Replay with the configured predictor only (default: both, same frames)");
+    c->add_option("--plc-script", o->rig_plc_script, "PLC inputs during the replay ('SECONDS LINE 0|1' per line, from the start): an e-stop, a panel leaving early")
+        ->check(CLI::ExistingFile);
+    c->add_flag("--no-arm", o->no_arm, "Do not draw the simulated arm into synthetic frames (it occludes macro-features in closed loop)");
+    c->add_flag("--quiet,-q", o->quiet, "No progress lines");
+  }
+  const auto run = [o, stop_signals, calibrate_board](bool is_replay) {
+    const auto config = load_or_report(o->rig_config);
+    if (!config) return kExitConfig;
+    // A stop asked for ends the run at its next step, with its report marked partial.
+    StopSignalWatcher stop(stop_signals);
+    ReplayOptions options;
+    options.stop = &stop.signal();
+    options.progress = !o->quiet;
+    options.both_predictors = !o->one_predictor;
+    options.draw_arm = !o->no_arm;
+    options.gpio_sim = o->rig_gpio_sim;
+    options.arm_serial_peer = o->rig_arm_serial_peer;
+    if (!o->rig_plc_script.empty()) {
+      try {
+        options.plc_events = sim::load_plc_script(o->rig_plc_script);
+      } catch (const std::exception& e) {
+        std::cerr << "markcell: " << e.what() << "\n";
+        return kExitConfig;
+      }
+    }
+    options.radius = o->radius_mm / 1000.0;
+    if (is_replay) return replay_command(*config, o->replay_recording, o->rig_out, options);
+    std::string scanner_file = o->scanner_file;
+    if (scanner_file.empty())
+      scanner_file = (std::filesystem::path(o->rig_config).parent_path() / "calibration" / "inspection_stereo.yaml").string();
+    return sim_command(*config, o->sim_scenario, o->sim_seed, o->sim_seconds, o->sim_fps, scanner_file, o->rig_out, options,
+                       calibrate_board);
+  };
+  out.push_back({sim, [run] { return run(false); }, true});
+  out.push_back({replay, [run] { return run(true); }, true});
+}
+
+}  // namespace markcell::rig

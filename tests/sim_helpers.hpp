@@ -70,15 +70,16 @@ inline const std::string& sim_dir() {
   return out;
 }
 
-// report.json's "NAME": {"max_abs": [x, y, z] ...} (prediction_error_mm, ...).
+// report.json's NAME.max_abs [x, y, z] (prediction_error_mm, ...) of the configured
+// predictor's run (the top level).
 inline Eigen::Vector3d json_max_abs(const std::string& json, const std::string& name) {
-  const auto at = json.find("\"" + name + "\": {\"max_abs\": [");
-  REQUIRE(at != std::string::npos);
-  std::istringstream in(json.substr(json.find('[', at) + 1));
-  double x = 0, y = 0, z = 0;
-  char comma = 0;
-  in >> x >> comma >> y >> comma >> z;
-  return {x, y, z};
+  const auto report = parse_json(json);
+  INFO(name);
+  REQUIRE(report.contains(name));
+  const auto& v = report[name]["max_abs"];
+  REQUIRE(v.is_array());
+  REQUIRE(v.size() == 3);
+  return {v[0].get<double>(), v[1].get<double>(), v[2].get<double>()};
 }
 
 // The example configuration for a cell inside the test process: no service manager, no

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <sstream>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -26,11 +27,23 @@ using namespace markcell::host;
 
 namespace {
 
-std::string num(double v, int digits = 3) { return json_number(v, digits); }
-std::string vec(const Eigen::Vector3d& v, double scale, int digits = 3) {
-  return "[" + num(v.x() * scale, digits) + ", " + num(v.y() * scale, digits) + ", " + num(v.z() * scale, digits) + "]";
+using Json = nlohmann::ordered_json;  // members in the order written: the report reads as docs/rig.md lists it
+
+// A figure rounded to `digits` decimals before it goes in, so that the same run always
+// prints the same bytes; not finite: null.
+Json num(double v, int digits = 3) {
+  if (!std::isfinite(v)) return nullptr;
+  const double scale = std::pow(10.0, digits);
+  return std::round(v * scale) / scale;
 }
-std::string quote(std::string_view s) { return json_quote(s); }
+Json vec(const Eigen::Vector3d& v, double scale, int digits = 3) {
+  return Json::array({num(v.x() * scale, digits), num(v.y() * scale, digits), num(v.z() * scale, digits)});
+}
+// A figure as text with fixed decimals (the plots' labels, the printed tables).
+std::string fixed(double v, int digits) { return json_number(v, digits); }
+
+// `value` when `known`, else null (a figure the run could not measure).
+Json known_or_null(bool known, Json value) { return known ? std::move(value) : Json(nullptr); }
 
 struct Counts {
   int planned = 0, marked = 0, skipped = 0, sprayed = 0;
@@ -69,83 +82,84 @@ PlanCheck plan_check(const PredictorRun& r) {
   return p;
 }
 
-std::string plan_json(const PredictorRun& r) {
+Json plan_json(const PredictorRun& r) {
   const PlanCheck p = plan_check(r);
-  if (!p.made) return "\"plan\": null";
-  std::string j = "\"plan\": {\"feasible\": " + std::to_string(p.feasible) + ", \"infeasible\": " + std::to_string(p.infeasible) +
-                  ", \"matches_run\": " + (p.matches ? "true" : "false") + ", \"spray_time_error_s_max\": " +
-                  num(p.time_error_max) + ", \"verdicts\": [";
-  bool first = true;
-  for (int i = 0; i < r.panel.defects.ssize(); ++i) {
-    const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
+  if (!p.made) return nullptr;
+  Json verdicts = Json::array();
+  for (const control::DefectResult& d : r.panel.defects) {
     // Times from when the plan was made.
-    const auto since = [&](Nanos t) { return t >= 0 ? num(to_seconds(t - r.panel.planned_at)) : std::string("null"); };
-    j += std::string(first ? "" : ", ") + "{\"id\": " + std::to_string(d.id) + ", \"verdict\": " + quote(control::to_string(d.plan)) +
-         ", \"planned_spray_s\": " + since(d.planned_spray) + ", \"spray_s\": " + since(d.sprayed ? d.spray_requested : -1) +
-         ", \"placement_sigma_mm\": " + num(d.placement_sigma * 1000) + "}";
-    first = false;
+    const auto since = [&](Nanos t) { return t >= 0 ? num(to_seconds(t - r.panel.planned_at)) : Json(nullptr); };
+    verdicts.push_back(Json{{"id", d.id},
+                            {"verdict", control::to_string(d.plan)},
+                            {"planned_spray_s", since(d.planned_spray)},
+                            {"spray_s", since(d.sprayed ? d.spray_requested : -1)},
+                            {"placement_sigma_mm", num(d.placement_sigma * 1000)}});
   }
-  return j + "]}";
+  return Json{{"feasible", p.feasible},
+              {"infeasible", p.infeasible},
+              {"matches_run", p.matches},
+              {"spray_time_error_s_max", num(p.time_error_max)},
+              {"verdicts", std::move(verdicts)}};
 }
 
-// The figures of one predictor's run, as JSON members (no braces), indented.
-std::string run_json(const PredictorRun& r, const std::string& ind) {
+// The figures of one predictor's run.
+Json run_json(const PredictorRun& r) {
   const Counts c = counts(r);
-  std::ostringstream o;
-  o << ind << "\"predictor\": " << quote(r.predictor) << ",\n";
-  o << ind << "\"defects\": {\"planned\": " << c.planned << ", \"marked\": " << c.marked << ", \"skipped\": " << c.skipped
-    << ", \"sprayed\": " << c.sprayed << ", \"skipped_reasons\": [";
-  bool first = true;
-  for (int i = 0; i < r.panel.defects.ssize(); ++i) {
-    const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
-    if (d.skipped == control::SkipReason::kNone) continue;
-    o << (first ? "" : ", ") << "{\"id\": " << d.id << ", \"reason\": " << quote(control::to_string(d.skipped)) << "}";
-    first = false;
-  }
-  o << "]},\n";
-  o << ind << plan_json(r) << ",\n";
-  o << ind << "\"false_sprays\": " << (r.scored ? std::to_string(r.score.false_sprays) : "null") << ",\n";
-  o << ind << "\"marking_error_mm\": {\"max\": " << (r.scored && r.score.marked > 0 ? num(r.score.error_max * 1000) : "null")
-    << ", \"rms\": " << (r.scored && r.score.marked > 0 ? num(r.score.error_rms * 1000) : "null") << "},\n";
-  o << ind << "\"prediction_error_mm\": {\"max_abs\": "
-    << (r.prediction_max_abs ? vec(*r.prediction_max_abs, 1000) : std::string("null"))
-    << ", \"one_frame_ahead_max_abs\": " << vec(r.one_frame_max_abs, 1000) << ", \"per_defect\": [";
-  for (std::size_t i = 0; i < r.prediction_per_defect.size(); ++i)
-    o << (i ? ", " : "") << "{\"id\": " << r.prediction_per_defect[i].id << ", \"abs\": " << vec(r.prediction_per_defect[i].abs, 1000) << "}";
-  o << "]},\n";
+  Json skipped = Json::array();
+  for (const control::DefectResult& d : r.panel.defects)
+    if (d.skipped != control::SkipReason::kNone) skipped.push_back(Json{{"id", d.id}, {"reason", control::to_string(d.skipped)}});
+  Json per_defect = Json::array();
+  for (const auto& d : r.prediction_per_defect) per_defect.push_back(Json{{"id", d.id}, {"abs", vec(d.abs, 1000)}});
   const auto& ic = r.panel.intercalibration;
   const bool has_ic = ic.inliers > 0;
-  o << ind << "\"intercalibration_cm\": {\"max_abs\": " << (has_ic ? vec(ic.max_abs, 100) : "null")
-    << ", \"rms\": " << (has_ic ? vec(ic.rms, 100) : "null") << ", \"macro_features\": " << ic.inliers
-    << ", \"status\": " << quote(control::to_string(ic.status)) << "},\n";
-  o << ind << "\"pose_error_mm\": {\"max\": " << (r.pose_samples > 0 ? num(r.pose_error_max * 1000) : "null")
-    << ", \"rms\": " << (r.pose_samples > 0 ? num(r.pose_error_rms * 1000) : "null") << ", \"samples\": " << r.pose_samples
-    << ", \"missing_mfs_max\": " << (r.pose_samples_missing > 0 ? num(r.pose_error_missing_max * 1000) : "null")
-    << ", \"missing_mfs_samples\": " << r.pose_samples_missing
-    << ", \"setup_frame_max\": " << (r.pose_samples > 0 ? num(r.pose_error_setup_frame_max * 1000) : "null") << "},\n";
-  o << ind << "\"defect_error_mm\": {\"max\": " << (r.pose_samples > 0 ? num(r.defect_error_max * 1000) : "null")
-    << ", \"rms\": " << (r.pose_samples > 0 ? num(r.defect_error_rms * 1000) : "null") << "},\n";
-  o << ind << "\"seconds_per_defect\": " << (c.sprayed > 0 ? num(r.seconds_per_defect) : "null") << ",\n";
-  o << ind << "\"deadline_misses\": " << r.deadline_misses << ",\n";
-  o << ind << "\"overruns\": " << r.overruns << ",\n";
-  o << ind << "\"panel\": {\"id\": " << quote(r.panel.panel_id.view()) << ", \"fault\": " << (r.panel.fault ? "true" : "false")
-    << ", \"reason\": " << quote(r.panel.reason.view()) << "},\n";
-  o << ind << "\"vision\": {\"frames\": " << r.vision.frames << ", \"dropped\": " << r.vision.dropped
-    << ", \"poses\": " << r.vision.poses << ", \"skipped\": " << r.frames_skipped
-    << ", \"arm_drawn\": " << r.arm.drawn << ", \"arm_hid_pairs\": " << r.arm.hid_pairs
-    << ", \"arm_hidden_mfs\": " << r.arm.hidden_mfs << "},\n";
-  o << ind << "\"peer_late_ticks\": " << r.peer_late_ticks << ",\n";
-  o << ind << "\"sprays\": [";
-  for (std::size_t i = 0; i < r.score.sprays.size(); ++i) {
-    const auto& s = r.score.sprays[i];
-    o << (i ? ", " : "") << "{\"t_s\": " << num(to_seconds(s.time), 4) << ", \"defect\": " << s.nearest_defect
-      << ", \"distance_mm\": " << num(s.distance * 1000) << ", \"hit\": " << (s.hit ? "true" : "false") << "}";
-  }
-  o << "],\n";
-  o << ind << "\"faults\": [";
-  for (std::size_t i = 0; i < r.faults.size(); ++i) o << (i ? ", " : "") << quote(r.faults[i]);
-  o << "]";
-  return o.str();
+  const bool marked = r.scored && r.score.marked > 0, posed = r.pose_samples > 0;
+  Json sprays = Json::array();
+  for (const auto& s : r.score.sprays)
+    sprays.push_back(Json{{"t_s", num(to_seconds(s.time), 4)},
+                          {"defect", s.nearest_defect},
+                          {"distance_mm", num(s.distance * 1000)},
+                          {"hit", s.hit}});
+  return Json{
+      {"predictor", r.predictor},
+      {"defects",
+       {{"planned", c.planned}, {"marked", c.marked}, {"skipped", c.skipped}, {"sprayed", c.sprayed}, {"skipped_reasons", skipped}}},
+      {"plan", plan_json(r)},
+      {"false_sprays", known_or_null(r.scored, r.score.false_sprays)},
+      {"marking_error_mm",
+       {{"max", known_or_null(marked, num(r.score.error_max * 1000))}, {"rms", known_or_null(marked, num(r.score.error_rms * 1000))}}},
+      {"prediction_error_mm",
+       {{"max_abs", r.prediction_max_abs ? vec(*r.prediction_max_abs, 1000) : Json(nullptr)},
+        {"one_frame_ahead_max_abs", vec(r.one_frame_max_abs, 1000)},
+        {"per_defect", per_defect}}},
+      {"intercalibration_cm",
+       {{"max_abs", known_or_null(has_ic, vec(ic.max_abs, 100))},
+        {"rms", known_or_null(has_ic, vec(ic.rms, 100))},
+        {"macro_features", ic.inliers},
+        {"status", control::to_string(ic.status)}}},
+      {"pose_error_mm",
+       {{"max", known_or_null(posed, num(r.pose_error_max * 1000))},
+        {"rms", known_or_null(posed, num(r.pose_error_rms * 1000))},
+        {"samples", r.pose_samples},
+        {"missing_mfs_max", known_or_null(r.pose_samples_missing > 0, num(r.pose_error_missing_max * 1000))},
+        {"missing_mfs_samples", r.pose_samples_missing},
+        {"setup_frame_max", known_or_null(posed, num(r.pose_error_setup_frame_max * 1000))}}},
+      {"defect_error_mm",
+       {{"max", known_or_null(posed, num(r.defect_error_max * 1000))}, {"rms", known_or_null(posed, num(r.defect_error_rms * 1000))}}},
+      {"seconds_per_defect", known_or_null(c.sprayed > 0, num(r.seconds_per_defect))},
+      {"deadline_misses", r.deadline_misses},
+      {"overruns", r.overruns},
+      {"panel", {{"id", r.panel.panel_id.view()}, {"fault", r.panel.fault}, {"reason", r.panel.reason.view()}}},
+      {"vision",
+       {{"frames", r.vision.frames},
+        {"dropped", r.vision.dropped},
+        {"poses", r.vision.poses},
+        {"skipped", r.frames_skipped},
+        {"arm_drawn", r.arm.drawn},
+        {"arm_hid_pairs", r.arm.hid_pairs},
+        {"arm_hidden_mfs", r.arm.hidden_mfs}}},
+      {"peer_late_ticks", r.peer_late_ticks},
+      {"sprays", sprays},
+      {"faults", r.faults}};
 }
 
 // --- plots ------------------------------------------------------------------------
@@ -179,10 +193,10 @@ void plot_panel(cv::Mat& img, const cv::Rect& area, const std::vector<Series>& s
     cv::putText(img, s.label, {area.x + area.width - 150, area.y + 16 + 14 * static_cast<int>(k)}, cv::FONT_HERSHEY_SIMPLEX, 0.4,
                 s.colour, 1, cv::LINE_AA);
   }
-  cv::putText(img, num(v1, 1), {area.x + 2, area.y + 30}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(80, 80, 80));
-  cv::putText(img, num(v0, 1), {area.x + 2, area.y + area.height - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(80, 80, 80));
-  cv::putText(img, num(t0, 1) + " s", {area.x + 50, area.y + area.height - 2}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(80, 80, 80));
-  cv::putText(img, num(t1, 1) + " s", {area.x + area.width - 50, area.y + area.height - 2}, cv::FONT_HERSHEY_SIMPLEX, 0.35,
+  cv::putText(img, fixed(v1, 1), {area.x + 2, area.y + 30}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(80, 80, 80));
+  cv::putText(img, fixed(v0, 1), {area.x + 2, area.y + area.height - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(80, 80, 80));
+  cv::putText(img, fixed(t0, 1) + " s", {area.x + 50, area.y + area.height - 2}, cv::FONT_HERSHEY_SIMPLEX, 0.35, cv::Scalar(80, 80, 80));
+  cv::putText(img, fixed(t1, 1) + " s", {area.x + area.width - 50, area.y + area.height - 2}, cv::FONT_HERSHEY_SIMPLEX, 0.35,
               cv::Scalar(80, 80, 80));
 }
 
@@ -326,31 +340,31 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
   files.push_back(commands);
 
   const std::string json = (dir / "report.json").string();
-  std::ofstream out(json);
-  out << "{\n  \"scenario\": " << quote(report.scenario) << ",\n  \"recording\": " << quote(report.recording)
-      << ",\n  \"panel_type\": " << quote(report.panel_type) << ",\n  \"devices\": " << quote(report.devices) << ",\n";
-  // A run stopped by a signal is partial: said first, so no reader takes it for whole.
-  out << "  \"stopped\": " << (report.stopped.empty() ? std::string("null") : quote(report.stopped)) << ",\n";
-  out << "  \"index_problems\": [";
-  for (std::size_t i = 0; i < report.index_problems.size(); ++i) out << (i ? ", " : "") << quote(report.index_problems[i]);
-  out << "],\n";
-  out << run_json(main, "  ") << ",\n";
-  out << "  \"predictors\": {";
-  for (std::size_t i = 0; i < report.runs.size(); ++i) {
-    out << (i ? ",\n" : "\n") << "    " << quote(report.runs[i].predictor) << ": {\n" << run_json(report.runs[i], "      ") << "\n    }";
-  }
-  out << "\n  },\n";
-  out << "  \"paper\": {\"intercalibration_cm\": {\"max_abs\": [1.63, 0.89, 2.01], \"rms\": [0.86, 0.45, 1.16]}, "
-         "\"prediction_error_mm\": {\"max_abs\": [9.67, 2.0, 2.0]}, \"seconds_per_defect\": {\"door\": 3.33, \"fender\": 3.75}, "
-         "\"region_diameter_cm\": [2, 3], \"frame_rate_hz\": 0.5},\n";
-  out << "  \"plots\": [";
-  bool first_plot = true;
+  Json doc{{"scenario", report.scenario},
+           {"recording", report.recording},
+           {"panel_type", report.panel_type},
+           {"devices", report.devices},
+           // A run stopped by a signal is partial: said first, so no reader takes it for whole.
+           {"stopped", report.stopped.empty() ? Json(nullptr) : Json(report.stopped)},
+           {"index_problems", report.index_problems}};
+  const Json main_run = run_json(main);  // (named: items() does not keep a temporary alive)
+  for (const auto& [key, value] : main_run.items()) doc[key] = value;  // the configured predictor's, at the top
+  Json predictors = Json::object();
+  for (const auto& run : report.runs) predictors[run.predictor] = run_json(run);
+  doc["predictors"] = std::move(predictors);
+  doc["paper"] = Json{{"intercalibration_cm", {{"max_abs", {1.63, 0.89, 2.01}}, {"rms", {0.86, 0.45, 1.16}}}},
+                      {"prediction_error_mm", {{"max_abs", {9.67, 2.0, 2.0}}}},
+                      {"seconds_per_defect", {{"door", 3.33}, {"fender", 3.75}}},
+                      {"region_diameter_cm", {2, 3}},
+                      {"frame_rate_hz", 0.5}};
+  Json plots = Json::array();
   for (const auto& f : files)
-    if (f.ends_with(".png")) {
-      out << (first_plot ? "" : ", ") << quote(std::filesystem::path(f).filename().string());
-      first_plot = false;
-    }
-  out << "]\n}\n";
+    if (f.ends_with(".png")) plots.push_back(std::filesystem::path(f).filename().string());
+  doc["plots"] = std::move(plots);
+  std::ofstream out(json);
+  // Text the rig did not make (a recording's path, index problems) may hold any bytes:
+  // replaced, never a report that fails to write.
+  out << doc.dump(2, ' ', false, Json::error_handler_t::replace) << "\n";
   out.close();
   files.insert(files.begin(), json);
   return files;
@@ -395,31 +409,31 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
   }, "-");
   row("false sprays", [](const PredictorRun& r) { return r.scored ? std::to_string(r.score.false_sprays) : std::string("-"); }, "-");
   row("marking error max / rms, mm", [](const PredictorRun& r) {
-    return r.scored && r.score.marked > 0 ? num(r.score.error_max * 1000, 1) + " / " + num(r.score.error_rms * 1000, 1) : std::string("-");
+    return r.scored && r.score.marked > 0 ? fixed(r.score.error_max * 1000, 1) + " / " + fixed(r.score.error_rms * 1000, 1) : std::string("-");
   }, "region 20-30 mm");
-  row("seconds per defect", [](const PredictorRun& r) { return r.seconds_per_defect > 0 ? num(r.seconds_per_defect, 2) : std::string("-"); },
+  row("seconds per defect", [](const PredictorRun& r) { return r.seconds_per_defect > 0 ? fixed(r.seconds_per_defect, 2) : std::string("-"); },
       report.panel_type == "fender" ? "3.75" : "3.33");
   row("prediction error max |x y z|, mm", [](const PredictorRun& r) {
-    return r.prediction_max_abs ? num(r.prediction_max_abs->x() * 1000, 1) + " " + num(r.prediction_max_abs->y() * 1000, 1) + " " +
-                                      num(r.prediction_max_abs->z() * 1000, 1)
+    return r.prediction_max_abs ? fixed(r.prediction_max_abs->x() * 1000, 1) + " " + fixed(r.prediction_max_abs->y() * 1000, 1) + " " +
+                                      fixed(r.prediction_max_abs->z() * 1000, 1)
                                 : std::string("-");
   }, "9.67 2 2");
   row("inter-cal max |x y z|, cm", [](const PredictorRun& r) {
     const auto& m = r.panel.intercalibration.max_abs;
-    return r.panel.intercalibration.inliers > 0 ? num(m.x() * 100, 2) + " " + num(m.y() * 100, 2) + " " + num(m.z() * 100, 2) : std::string("-");
+    return r.panel.intercalibration.inliers > 0 ? fixed(m.x() * 100, 2) + " " + fixed(m.y() * 100, 2) + " " + fixed(m.z() * 100, 2) : std::string("-");
   }, "1.63 0.89 2.01");
   row("inter-cal rms x y z, cm", [](const PredictorRun& r) {
     const auto& m = r.panel.intercalibration.rms;
-    return r.panel.intercalibration.inliers > 0 ? num(m.x() * 100, 2) + " " + num(m.y() * 100, 2) + " " + num(m.z() * 100, 2) : std::string("-");
+    return r.panel.intercalibration.inliers > 0 ? fixed(m.x() * 100, 2) + " " + fixed(m.y() * 100, 2) + " " + fixed(m.z() * 100, 2) : std::string("-");
   }, "0.86 0.45 1.16");
   row("panel pose error max / rms, mm", [](const PredictorRun& r) {
-    return r.pose_samples > 0 ? num(r.pose_error_max * 1000, 1) + " / " + num(r.pose_error_rms * 1000, 1) : std::string("-");
+    return r.pose_samples > 0 ? fixed(r.pose_error_max * 1000, 1) + " / " + fixed(r.pose_error_rms * 1000, 1) : std::string("-");
   }, "-");
   row("  with MFs missing, max, mm", [](const PredictorRun& r) {
-    return r.pose_samples_missing > 0 ? num(r.pose_error_missing_max * 1000, 1) : std::string("-");
+    return r.pose_samples_missing > 0 ? fixed(r.pose_error_missing_max * 1000, 1) : std::string("-");
   }, "-");
   row("tracked defect error max / rms, mm", [](const PredictorRun& r) {
-    return r.pose_samples > 0 ? num(r.defect_error_max * 1000, 1) + " / " + num(r.defect_error_rms * 1000, 1) : std::string("-");
+    return r.pose_samples > 0 ? fixed(r.defect_error_max * 1000, 1) + " / " + fixed(r.defect_error_rms * 1000, 1) : std::string("-");
   }, "-");
   row("frames / poses / dropped", [](const PredictorRun& r) {
     return std::to_string(r.vision.frames) + "/" + std::to_string(r.vision.poses) + "/" + std::to_string(r.vision.dropped);

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <cstdio>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <iostream>
 #include <sstream>
 #include <thread>
@@ -74,11 +75,8 @@ bool parse_cyclictest_histogram(const std::string& path, Latency& out, std::stri
   return true;
 }
 
-std::string json_latency(const Latency& l) {
-  std::ostringstream os;
-  os << "{\"p50\": " << l.p50 << ", \"p99\": " << l.p99 << ", \"p99_9\": " << l.p999 << ", \"max\": " << l.max
-     << ", \"samples\": " << l.samples << "}";
-  return os.str();
+nlohmann::ordered_json json_latency(const Latency& l) {
+  return {{"p50", l.p50}, {"p99", l.p99}, {"p99_9", l.p999}, {"max", l.max}, {"samples", l.samples}};
 }
 
 }  // namespace
@@ -188,11 +186,17 @@ int bench_loop(const CellConfig& config, const LoopBenchOptions& options) {
 
   if (!options.json_path.empty()) {
     std::ofstream out(options.json_path);
-    out << "{\n  \"benchmark\": \"loop\",\n  \"period_us\": 1000,\n  \"seconds\": " << options.seconds
-        << ",\n  \"lane\": \"" << lane_spec.name << "\",\n  \"priority\": " << lane_spec.priority
-        << ",\n  \"core\": " << lane_spec.core << ",\n  \"markcell_us\": " << json_latency(ours)
-        << ",\n  \"cyclictest_us\": " << json_latency(ref) << ",\n  \"p99_9_ratio\": " << ratio
-        << ",\n  \"privilege_warnings\": " << warnings.size() << "\n}\n";
+    const nlohmann::ordered_json doc{{"benchmark", "loop"},
+                                     {"period_us", 1000},
+                                     {"seconds", options.seconds},
+                                     {"lane", lane_spec.name},
+                                     {"priority", lane_spec.priority},
+                                     {"core", lane_spec.core},
+                                     {"markcell_us", json_latency(ours)},
+                                     {"cyclictest_us", json_latency(ref)},
+                                     {"p99_9_ratio", ratio},
+                                     {"privilege_warnings", warnings.size()}};
+    out << doc.dump(2, ' ', false, nlohmann::ordered_json::error_handler_t::replace) << "\n";
     if (!out) {
       std::cerr << "markcell bench loop: cannot write " << options.json_path << "\n";
       return 1;

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <vector>
 
 #include <opencv2/core/utility.hpp>
@@ -93,10 +94,17 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
               m_ours / m_floor, p99_ours, poses, ours.size(), static_cast<double>(mfs) / static_cast<double>(ours.size()), reinits);
   if (!options.json_path.empty()) {
     std::ofstream out(options.json_path);
-    out << "{\"pairs\": " << ours.size() << ", \"width\": " << rig.width() << ", \"height\": " << rig.height()
-        << ", \"macro_features\": " << model.count << ", \"scenario\": \"" << options.scenario << "\", \"markcell_ms\": {\"median\": "
-        << m_ours << ", \"p99\": " << p99_ours << ", \"max\": " << max_ours << "}, \"floor_ms\": {\"median\": " << m_floor
-        << ", \"p99\": " << p99_floor << "}, \"ratio\": " << m_ours / m_floor << ", \"poses\": " << poses << ", \"searches\": " << reinits << "}\n";
+    const nlohmann::ordered_json doc{{"pairs", ours.size()},
+                                     {"width", rig.width()},
+                                     {"height", rig.height()},
+                                     {"macro_features", model.count},
+                                     {"scenario", options.scenario},
+                                     {"markcell_ms", {{"median", m_ours}, {"p99", p99_ours}, {"max", max_ours}}},
+                                     {"floor_ms", {{"median", m_floor}, {"p99", p99_floor}}},
+                                     {"ratio", m_ours / m_floor},
+                                     {"poses", poses},
+                                     {"searches", reinits}};
+    out << doc.dump(2, ' ', false, nlohmann::ordered_json::error_handler_t::replace) << "\n";
   }
   return 0;
 }

@@ -19,13 +19,16 @@
 #include <Eigen/Core>
 
 #include "markcell/common/time.hpp"
+#include "markcell/drivers/sim_arm.hpp"
 
 namespace markcell::control {
 
+// The arm's limits default to the arm model's (drivers::SimArmLimits: declared there once);
+// the cell sets them from `devices.arm.limits`.
 struct ArmTimingModel {
-  double max_speed = 1.0;   // m/s, TCP
-  double max_accel = 4.0;   // m/s^2
-  double reach = 1.6;       // m, from the base origin
+  double max_speed = drivers::SimArmLimits{}.max_speed;  // m/s, TCP
+  double max_accel = drivers::SimArmLimits{}.max_accel;  // m/s^2
+  double reach = drivers::SimArmLimits{}.reach;          // m, from the base origin
   Nanos settle = millis(150);  // on target before the pulse: command lead, pursuit, settle time
   Nanos pulse = millis(80);
   Nanos defect_timeout = seconds(6);  // the sequence gives up on a defect after this

@@ -104,13 +104,14 @@ struct CanConfig {
   }
 };
 
-// `devices.arm.limits`. The planner's model (control::ArmTimingModel) owns the
-// defaults of the TCP limits and the reach: the cell's plan uses these values.
+// `devices.arm.limits`. Their defaults are the arm model's (drivers::SimArmLimits), through
+// the planner's model (control::ArmTimingModel) for the TCP limits and the reach: the
+// cell's plan and its simulated arm use these values.
 struct ArmLimitsConfig {
   double reach = control::ArmTimingModel{}.reach;                  // m, from the base origin
   double max_tcp_speed = control::ArmTimingModel{}.max_speed;      // m/s
   double max_tcp_accel = control::ArmTimingModel{}.max_accel;      // m/s^2
-  std::array<double, 3> home{0.3, 0.0, 0.6};  // tool position at home, base frame, m
+  std::array<double, 3> home = drivers::SimArmLimits{}.home.position;  // tool position at home, base frame, m
 
   template <class V>
   void Visit(V& v) {

@@ -59,19 +59,24 @@ TEST_CASE("run on the simulated clock prints the timing report") {
 }
 
 TEST_CASE("run stops cleanly on SIGTERM and on SIGINT, outputs safe, report printed") {
-  for (const char* sig : {"TERM", "INT"}) {
-    // The shell starts the cell on the real clock, waits (up to 30 s) until it says it
-    // runs, signals it, and reports its exit status.
-    markcell::test::TempDir dir;
-    const std::string log = (dir.path() / "log").string();
-    const auto r = run_command("( " + kMarkcell + " run --config " + source_path("config/cell.example.yaml") + " > " + log +
-                               " 2>&1 & pid=$!; for i in $(seq 300); do grep -q 'running on the real clock' " + log +
-                               " && break; sleep 0.1; done; kill -" + sig + " $pid; wait $pid; echo \"exit=$?\"; cat " + log + " )");
-    INFO(sig << ": " << r.output);
-    CHECK(r.output.find("exit=0") != std::string::npos);
-    CHECK(r.output.find(std::string("stopped (SIG") + sig + ")") != std::string::npos);
-    CHECK(r.output.find("timing report (real clock)") != std::string::npos);
-    CHECK(r.output.find(std::string("shutdown       markcell         SIG") + sig) != std::string::npos);
+  // On the simulated clock too: a day of simulated time is never waited out.
+  for (const std::string clock : {"real", "simulated"}) {
+    const std::string args = clock == "real" ? "" : " --clock sim --seconds 86400";
+    for (const char* sig : {"TERM", "INT"}) {
+      // The shell starts the cell, waits (up to 30 s) until it says it runs, signals it,
+      // and reports its exit status.
+      markcell::test::TempDir dir;
+      const std::string log = (dir.path() / "log").string();
+      const auto r = run_command("( " + kMarkcell + " run --config " + source_path("config/cell.example.yaml") + args + " > " +
+                                 log + " 2>&1 & pid=$!; for i in $(seq 300); do grep -q 'running on the " + clock + " clock' " +
+                                 log + " && break; sleep 0.1; done; kill -" + sig + " $pid; wait $pid; echo \"exit=$?\"; cat " +
+                                 log + " )");
+      INFO(clock << " clock, SIG" << sig << ": " << r.output);
+      CHECK(r.output.find("exit=0") != std::string::npos);
+      CHECK(r.output.find(std::string("stopped (SIG") + sig + ")") != std::string::npos);
+      CHECK(r.output.find("timing report (" + clock + " clock)") != std::string::npos);
+      CHECK(r.output.find(std::string("shutdown       markcell         SIG") + sig) != std::string::npos);
+    }
   }
 }
 

@@ -14,6 +14,7 @@
 #include "markcell/control/tool_pose.hpp"
 #include "markcell/drivers/gpiod_lines.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/service_loop.hpp"
 #include "markcell/rig/hil_peer.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
@@ -80,6 +81,8 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   cfg.cameras.recording = recording;
   cfg.marking.predictor.kind = kind;
   cfg.watchdog.systemd = false;  // no service manager in a rig run
+  cfg.results_file.clear();      // the rig writes its report, not the plant's results
+  cfg.record_folder.clear();
   cfg.watchdog.device.enabled = false;
   if (!real) {  // (a real-device run's configuration was checked before the first run)
     cfg.gpio.simulated = true;
@@ -121,7 +124,6 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   const auto now = [&] { return clock != nullptr ? clock->global_now() : cell.clock().now(0); };
   const Nanos start = now();  // the PLC script's and the command log's zero (0 in simulated time)
   cell.start();
-  drive(LineRole::kPlcPanelPresent, true);
   control::MarkingSequence& marking = *cell.marking();
   marking.offer_job(job);
   const Nanos end = source.end_time();
@@ -140,49 +142,49 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
                  to_seconds(t), to_seconds(end), std::string(control::to_string(marking.state())).c_str(), sprayed,
                  p.defects.ssize(), static_cast<unsigned long long>(cell.vision_stats()->frames), tty ? "   " : "\n");
   };
-  sim::PlcScript script(options.plc_events);
+
+  // Time runs through the service's own loop (host/service_loop.hpp), as under `markcell
+  // run`: looked at every second, the run ends with the panel done, or `tail` after the
+  // last frame. The line brings the panel at the start and takes it away with the
+  // recording's end: two PLC events around the user's script (after its events of the
+  // same time, as the line moves on its own).
+  std::vector<sim::PlcEvent> events = options.plc_events;
+  const Nanos leaves = end - now();
+  events.insert(std::upper_bound(events.begin(), events.end(), leaves, [](Nanos t, const sim::PlcEvent& e) { return t < e.at; }),
+                sim::PlcEvent{leaves, LineRole::kPlcPanelPresent, false});
+  events.insert(events.begin(), sim::PlcEvent{0, LineRole::kPlcPanelPresent, true});
+  std::vector<std::string> cell_faults;
+  const auto fault_line = [](const control::Fault& f) {
+    char line[256];
+    std::snprintf(line, sizeof line, "t=%.3f s %s %s: %s", to_seconds(f.time), std::string(control::to_string(f.code)).c_str(),
+                  f.source.c_str(), f.detail.c_str());
+    return std::string(line);
+  };
+  ServiceOptions service;
+  service.clock = real ? ClockKind::kReal : ClockKind::kSimulated;
+  service.duration = leaves + options.tail;
+  service.plc_events = std::move(events);
+  service.drive = drive;
+  service.step = seconds(1);
+  service.panels = 1;
+  service.journal = false;
+  service.on_fault = [&](const control::Fault& f) { cell_faults.push_back(fault_line(f)); };
+  service.on_step = [&](Nanos) { progress(now()); };
+  ServiceLoop loop(cfg, cell, std::move(service));
+  // A stop asked for is seen within 100 ms of simulated time (a few hundred ms of
+  // computing at most) or 5 ms of real time.
   int stopped_by = 0;
-  const auto stop_asked = [&] {
-    if (stopped_by == 0 && options.stop != nullptr) stopped_by = options.stop->load(std::memory_order_acquire);
-    return stopped_by != 0;
-  };
-  // Bounded steps, so that a stop asked for is seen within 100 ms of simulated time (a few
-  // hundred ms of computing at most) or 5 ms of real time.
-  const auto run_until = [&](Nanos t) {
-    if (clock == nullptr) {  // real time: the lanes run on their own, the PLC is polled here
-      for (Nanos n = now(); n < t && !stop_asked(); n = now())
-        std::this_thread::sleep_for(std::chrono::nanoseconds(std::min<Nanos>(t - n, millis(5))));
-      return;
+  const LoopEnd ended = loop.supervise([&](Nanos timeout) {
+    const Nanos until = monotonic_now() + timeout;
+    for (;;) {
+      if (options.stop != nullptr && (stopped_by = options.stop->load(std::memory_order_acquire)) != 0) return stopped_by;
+      const Nanos left = until - monotonic_now();
+      if (left <= 0) return 0;
+      std::this_thread::sleep_for(std::chrono::nanoseconds(std::min<Nanos>(left, millis(5))));
     }
-    for (Nanos n = clock->global_now(); n < t && !stop_asked(); n = clock->global_now())
-      if (clock->run_until(std::min(t, n + millis(100))) == control::SimClock::RunResult::kWedged)
-        throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock->global_now())) + " s");
-  };
-  // Time runs to `t`, stopping at each scripted PLC event on the way (script times are
-  // from the start).
-  const auto apply = [&](const sim::PlcEvent& ev) { drive(ev.line, ev.level); };
-  auto run_to = [&](Nanos t) {
-    while (!stop_asked()) {
-      const Nanos n = now();
-      const Nanos wait = script.until_next(n - start, t - n + 1);  // past t when none is left
-      if (n + wait > t) break;
-      run_until(n + std::max<Nanos>(wait, 1));
-      script.apply_due(now() - start, apply);
-    }
-    run_until(t);
-  };
-  script.apply_due(0, apply);
-  for (Nanos t = start + seconds(1); marking.panels_completed() == 0 && !stop_asked(); t += seconds(1)) {
-    run_to(std::min(t, end));
-    progress(now());
-    if (t >= end) break;
-  }
-  // The panel leaves the station with the recording's end (or with the stop).
-  drive(LineRole::kPlcPanelPresent, false);
-  for (Nanos t = end + seconds(1); marking.panels_completed() == 0 && t <= end + options.tail && !stop_asked(); t += seconds(1)) {
-    run_to(t);
-    progress(t);
-  }
+  });
+  if (ended == LoopEnd::kWedged)
+    throw std::runtime_error("the simulated cell wedged at t=" + std::to_string(to_seconds(clock->global_now())) + " s");
   const Nanos stopped_at = now() - start;
   if (options.progress && tty) std::fprintf(stderr, "\n");
   cell.shutdown(control::FaultCode::kShutdown, "rig", "replay finished");
@@ -208,12 +210,8 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     run.overruns += cell.executive().task_stats(static_cast<int>(i)).overruns.load();
   }
   control::Fault f;
-  while (cell.faults().pop(f)) {
-    char line[256];
-    std::snprintf(line, sizeof line, "t=%.3f s %s %s: %s", to_seconds(f.time), std::string(control::to_string(f.code)).c_str(),
-                  f.source.c_str(), f.detail.c_str());
-    run.faults.emplace_back(line);
-  }
+  while (cell.faults().pop(f)) cell_faults.push_back(fault_line(f));
+  run.faults.insert(run.faults.end(), cell_faults.begin(), cell_faults.end());
   for (std::size_t i = 0; i < marking.prediction_samples(); ++i) run.samples.push_back(marking.prediction_sample(i));
   for (std::size_t i = 0; i < marking.panel_frames(); ++i) run.panel_frames.push_back(marking.panel_frame(i));
   const int sprayed = run.panel.tally().sprayed;

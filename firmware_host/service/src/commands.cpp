@@ -1,6 +1,7 @@
 // The service's subcommands: check-config, config-schema, run.
 #include <signal.h>
 
+#include <cmath>
 #include <iostream>
 #include <memory>
 
@@ -45,7 +46,11 @@ int run_command(const std::string& file, const std::string& clock_name, double s
   Cell cell(config, clock);
   std::unique_ptr<ServiceLoop> service;
   try {
-    service = std::make_unique<ServiceLoop>(config, cell, ServiceOptions{clock, seconds, std::move(plc_events)});
+    ServiceOptions options;
+    options.clock = clock;
+    options.duration = static_cast<Nanos>(std::llround(seconds * 1e9));
+    options.plc_events = std::move(plc_events);
+    service = std::make_unique<ServiceLoop>(config, cell, std::move(options));
     service->start();
   } catch (const std::exception& e) {
     std::cerr << "markcell: start-up failed: " << e.what() << "\n";

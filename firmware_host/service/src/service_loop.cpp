@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <iostream>
+#include <limits>
 
 #include "markcell/common/log_escape.hpp"
 
@@ -72,7 +73,7 @@ void ServiceLoop::collect() {
       }
     } catch (const std::exception& e) {
       late = true;  // never acknowledged: the sequence's wait runs out, the PLC hears fault
-      journal_.log(3, format("markcell: %s (the PLC gets fault)", escape_log(e.what()).c_str()),
+      log(3, format("markcell: %s (the PLC gets fault)", escape_log(e.what()).c_str()),
                    {{"PANEL_ID", r.panel_id.view()}});
     }
   }
@@ -80,7 +81,7 @@ void ServiceLoop::collect() {
   const bool fault = r.fault || late;
   const std::string_view reason = late ? std::string_view("results file not written in time") : r.reason.view();
   const std::string sprayed_text = std::to_string(sprayed), skipped_text = std::to_string(skipped);
-  journal_.log(fault ? 3 : 6,
+  log(fault ? 3 : 6,
                format("markcell: panel=%s result=%s sprayed=%d skipped=%d reason=\"%s\"", escape_log(r.panel_id.view()).c_str(),
                       fault ? "fault" : "done", sprayed, skipped, escape_log(reason).c_str()),
                {{"PANEL_ID", r.panel_id.view()},
@@ -95,8 +96,12 @@ void ServiceLoop::collect() {
 void ServiceLoop::log_faults() {
   control::Fault f;
   while (cell_.faults().pop(f)) {
+    if (options_.on_fault) {
+      options_.on_fault(f);
+      continue;
+    }
     const std::string code(control::to_string(f.code));
-    journal_.log(3,
+    log(3,
                  format("markcell: fault t=%.6f code=%s source=%s detail=\"%s\"", to_seconds(f.time), code.c_str(),
                         escape_log(f.source.view()).c_str(), escape_log(f.detail.view()).c_str()),
                  {{"FAULT_CODE", code}, {"FAULT_SOURCE", f.source.view()}, {"FAULT_DETAIL", f.detail.view()}});
@@ -118,23 +123,23 @@ void ServiceLoop::take_records(Nanos now) {
       return cell_.marking()->offer_job(job);
     }, now);
   } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
-    journal_.log(3, format("markcell: record folder %s: %s", escape_log(records_->folder()).c_str(), escape_log(e.what()).c_str()),
+    log(3, format("markcell: record folder %s: %s", escape_log(records_->folder()).c_str(), escape_log(e.what()).c_str()),
                  {{"RECORD_FOLDER", records_->folder()}});
     return;
   }
   for (const RecordEvent& ev : events) {
     if (ev.kind == RecordEvent::Kind::kAccepted) {
-      journal_.log(6, format("markcell: record panel=%s accepted (%s)", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str()),
+      log(6, format("markcell: record panel=%s accepted (%s)", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str()),
                    {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}});
       continue;
     }
-    journal_.log(3, format("markcell: record rejected: %s (moved to %s)", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str()),
+    log(3, format("markcell: record rejected: %s (moved to %s)", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str()),
                  {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}, {"REJECT_REASON", ev.reason}});
     if (results_) {
       try {
         results_->append(ResultsFile::rejected_json(config_.name, ev.file, ev.panel_id, ev.reason));
       } catch (const std::exception& e) {
-        journal_.log(3, "markcell: " + escape_log(e.what()));
+        log(3, "markcell: " + escape_log(e.what()));
       }
     }
   }
@@ -143,13 +148,20 @@ void ServiceLoop::take_records(Nanos now) {
 // The scripted PLC: every event due by `elapsed` (since the start) applied, in order.
 void ServiceLoop::apply_plc_events(Nanos elapsed) {
   script_.apply_due(elapsed, [&](const sim::PlcEvent& ev) {
-    cell_.drive_sim_input(ev.line, ev.level);
-    journal_.log(6, format("markcell: plc-script t=%.3f s %s=%d", to_seconds(ev.at), std::string(to_string(ev.line)).c_str(),
+    if (options_.drive) options_.drive(ev.line, ev.level);
+    else cell_.drive_sim_input(ev.line, ev.level);
+    log(6, format("markcell: plc-script t=%.3f s %s=%d", to_seconds(ev.at), std::string(to_string(ev.line)).c_str(),
                            ev.level ? 1 : 0));
   });
 }
 
-Nanos ServiceLoop::next_event_after(Nanos elapsed) { return script_.until_next(elapsed, kNanosPerSecond); }
+void ServiceLoop::log(int priority, std::string_view text, std::initializer_list<JournalField> fields) const {
+  if (options_.journal) journal_.log(priority, text, fields);
+}
+
+Nanos ServiceLoop::now() const { return cell_.sim_clock() != nullptr ? cell_.sim_clock()->global_now() : monotonic_now(); }
+
+Nanos ServiceLoop::elapsed() const { return now() - start_; }
 
 // The service's state in systemd's status line, and the exit on a fault of the cell
 // itself: a stop the PLC caused waits for its re-arm (docs/safety.md); any other stop
@@ -173,98 +185,100 @@ bool ServiceLoop::watch_safety() {
   if (status != status_shown_) {
     if (config_.watchdog.systemd) cell_.notifier().status(status);
     if (stop.done() || status_shown_.rfind("safe stop", 0) == 0)
-      journal_.log(stop.done() ? 4 : 6, "markcell: " + escape_log(status), {{"CELL_STATE", status}});
+      log(stop.done() ? 4 : 6, "markcell: " + escape_log(status), {{"CELL_STATE", status}});
     status_shown_ = status;
   }
   return stop.done() && stop.internal_fault();
 }
 
-void ServiceLoop::run_simulated() {
-  const Nanos start = cell_.sim_clock()->global_now();
-  const Nanos end = start + static_cast<Nanos>(options_.seconds * 1e9);
+LoopEnd ServiceLoop::supervise(const StopWait& wait) {
+  const bool simulated = cell_.sim_clock() != nullptr;
+  const Nanos step = options_.step > 0 ? options_.step : simulated ? millis(100) : millis(50);
+  constexpr Nanos kForever = std::numeric_limits<Nanos>::max() / 2;
+  const Nanos duration = options_.duration > 0 ? options_.duration : kForever;
+  start_ = now();
   apply_plc_events(0);
-  for (Nanos t = start; t < end;) {
-    // Steps of 100 ms, cut at the script's events so each lands on its own time.
-    t = std::min({end, t + millis(100), t + std::max<Nanos>(1, next_event_after(t - start))});
-    if (cell_.sim_clock()->run_until(t) == control::SimClock::RunResult::kWedged) {
-      stop_reason_ = "simulation wedged";
-      break;
-    }
-    apply_plc_events(t - start);
-    collect();
-    log_faults();
-    take_records(t);
-    if (watch_safety()) {
-      stop_reason_ = "a fault of the cell";
-      exit_code_ = kExitRuntime;
-      break;
-    }
-  }
-}
-
-void ServiceLoop::run_real(const sigset_t& signals) {
-  const Nanos start = monotonic_now();
-  const Nanos end = options_.seconds > 0 ? start + static_cast<Nanos>(options_.seconds * 1e9) : 0;
   for (;;) {
-    // Bounded wait: wakes at once on a signal, at least every 50 ms otherwise.
-    apply_plc_events(monotonic_now() - start);
+    // A step: to the next look at the cell, cut at the script's next event. In simulated
+    // time the clock runs there; in real time the
+    // lanes run on their own and the wait is the step (results are on disk within a step
+    // of their panel's end, and a signal ends the wait at once).
+    const Nanos from = elapsed();
+    const Nanos to = std::min({duration, from + step, from + std::max<Nanos>(1, script_.until_next(from, kForever))});
+    if (simulated) {
+      // In pieces of 100 ms at most, so a stop is seen within 100 ms of simulated time.
+      for (Nanos at = from; at < to;) {
+        if ((signal_ = wait(0)) != 0) return LoopEnd::kSignal;
+        at = std::min(to, at + millis(100));
+        if (cell_.sim_clock()->run_until(start_ + at) == control::SimClock::RunResult::kWedged) return LoopEnd::kWedged;
+      }
+    } else if ((signal_ = wait(std::max<Nanos>(1, to - from))) != 0) {
+      return LoopEnd::kSignal;
+    }
+    const Nanos t = elapsed();
+    apply_plc_events(t);
     collect();
     log_faults();
-    take_records(monotonic_now());
-    if (watch_safety()) {
-      stop_reason_ = "a fault of the cell";
-      exit_code_ = kExitRuntime;
-      // A stalled lane may never finish its tick: the outputs are safe already (the
-      // safe stop drove them), the results are written; the process ends here.
-      if (cell_.safe_stop().reason().code == control::FaultCode::kLaneStall) {
-        journal_.log(3,
-                     format("markcell: stopped (lane stall: %s), exit 1 without waiting for the lanes",
-                            escape_log(cell_.safe_stop().reason().detail.view()).c_str()),
-                     {{"FAULT_CODE", "lane_stall"}});
-        std::fflush(stderr);
-        std::_Exit(kExitRuntime);
-      }
-      break;
-    }
-    Nanos wait = options_.seconds > 0 ? end - monotonic_now() : kNanosPerSecond;
-    if (wait <= 0) break;
-    if (wait > millis(50)) wait = millis(50);  // results are written within 50 ms of a panel's end
-    wait = std::max<Nanos>(1, std::min(wait, next_event_after(monotonic_now() - start)));
-    const timespec ts = to_timespec(wait);
-    const int sig = sigtimedwait(&signals, nullptr, &ts);
-    if (sig == SIGTERM || sig == SIGINT) {
-      stop_reason_ = sig == SIGTERM ? "SIGTERM" : "SIGINT";
-      break;
-    }
+    take_records(now());
+    if (options_.on_step) options_.on_step(t);
+    if (watch_safety()) return LoopEnd::kCellFault;
+    if (options_.panels > 0 && cell_.marking() != nullptr && cell_.marking()->panels_completed() >= options_.panels)
+      return LoopEnd::kPanels;
+    if (t >= duration) return LoopEnd::kDuration;
   }
 }
 
 void ServiceLoop::start() {
   const bool simulated = options_.clock == ClockKind::kSimulated;
   cell_.start();
-  for (const auto& w : cell_.privilege_warnings()) journal_.log(4, "markcell: warning: " + escape_log(w));
-  journal_.log(6, format("markcell: cell '%s' running on the %s clock", escape_log(config_.name).c_str(),
+  for (const auto& w : cell_.privilege_warnings()) log(4, "markcell: warning: " + escape_log(w));
+  log(6, format("markcell: cell '%s' running on the %s clock", escape_log(config_.name).c_str(),
                          simulated ? "simulated" : "real") +
-                      (options_.seconds > 0 ? format(" for %g s", options_.seconds) : std::string()));
+                      (options_.duration > 0 ? format(" for %g s", to_seconds(options_.duration)) : std::string()));
 }
 
 int ServiceLoop::run(const sigset_t& signals) {
   const bool simulated = options_.clock == ClockKind::kSimulated;
-  if (simulated) run_simulated();
-  else run_real(signals);
-  cell_.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason_);
+  const LoopEnd end = supervise([&](Nanos timeout) {
+    const timespec ts = to_timespec(timeout);
+    const int sig = sigtimedwait(&signals, nullptr, &ts);
+    return sig == SIGTERM || sig == SIGINT ? sig : 0;
+  });
+  std::string stop_reason = "duration elapsed";
+  int exit_code = kExitOk;
+  switch (end) {
+    case LoopEnd::kDuration:
+    case LoopEnd::kPanels: break;
+    case LoopEnd::kSignal: stop_reason = signal_ == SIGTERM ? "SIGTERM" : "SIGINT"; break;
+    case LoopEnd::kWedged: stop_reason = "simulation wedged"; break;
+    case LoopEnd::kCellFault:
+      stop_reason = "a fault of the cell";
+      exit_code = kExitRuntime;
+      // A stalled lane may never finish its tick: the outputs are safe already (the
+      // safe stop drove them), the results are written; the process ends here.
+      if (!simulated && cell_.safe_stop().reason().code == control::FaultCode::kLaneStall) {
+        log(3,
+            format("markcell: stopped (lane stall: %s), exit 1 without waiting for the lanes",
+                   escape_log(cell_.safe_stop().reason().detail.view()).c_str()),
+            {{"FAULT_CODE", "lane_stall"}});
+        std::fflush(stderr);
+        std::_Exit(kExitRuntime);
+      }
+      break;
+  }
+  cell_.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason);
   collect();
   if (results_) {
     try {
       close_interrupted(*results_, config_.name, nullptr, journal_);
     } catch (const std::exception& e) {
-      journal_.log(3, "markcell: " + escape_log(e.what()));
+      log(3, "markcell: " + escape_log(e.what()));
     }
   }
-  journal_.log(6, "markcell: stopped (" + stop_reason_ + ")");
+  log(6, "markcell: stopped (" + stop_reason + ")");
   std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n" << cell_.executive().timing_report();
   print_faults(cell_.faults());
-  return exit_code_;
+  return exit_code;
 }
 
 }  // namespace markcell::host

@@ -5,12 +5,17 @@
 // keeps systemd's status line, applies a scripted PLC (simulated lines), and decides
 // when the process ends: the duration elapsed, SIGTERM or SIGINT, or a fault of the cell
 // itself (exit 1, for Restart=on-failure). Every wait is bounded (50 ms at most), so a
-// result is on disk within 50 ms of its panel's end and a signal is seen at once.
+// result is on disk within 50 ms of its panel's end and a signal is seen at once (within
+// 100 ms of simulated time on the simulated clock).
+//
+// The rig's replay runs its cell through the same loop (supervise()): the same steps, the
+// same scripted PLC, the same looks at the cell; its stop, faults and progress its own.
 //
 // Its lines go to the journal with fields, or to stderr with sd-daemon's priority
 // prefixes (journal.hpp); every value escaped in the text. docs/operation.md lists them.
 #include <csignal>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -31,9 +36,28 @@ inline constexpr int kExitConfig = 2;   // an invalid configuration or arguments
 
 struct ServiceOptions {
   ClockKind clock = ClockKind::kReal;
-  double seconds = 0;                   // 0: until a signal (the real clock only)
+  Nanos duration = 0;                     // 0: until a signal (the real clock only)
   std::vector<sim::PlcEvent> plc_events;  // a scripted PLC on simulated lines; times from the start
+
+  // For the rig's replay (rig/replay.cpp), which runs its cell through this same loop:
+  // the PLC's inputs driven here (its peer behind real devices) instead of the cell's
+  // simulated lines; empty: the cell's.
+  std::function<void(LineRole, bool)> drive;
+  Nanos step = 0;            // between two looks at the cell; 0: 100 ms simulated, 50 ms real
+  std::uint64_t panels = 0;  // the loop ends once this many panels are done (0: it does not)
+  bool journal = true;       // false: no journal lines (the replay keeps stderr for its progress)
+  // Every fault as it is recorded; empty: each one a journal line.
+  std::function<void(const control::Fault&)> on_fault;
+  std::function<void(Nanos elapsed)> on_step;  // after each step, with the time since the start
 };
+
+// Why the loop ended.
+enum class LoopEnd { kDuration, kPanels, kSignal, kCellFault, kWedged };
+
+// Waits up to `timeout` of real time for a stop to be asked (0: only looks); returns the
+// signal's number, or 0 when none came. `run` waits in sigtimedwait, the rig on its
+// StopSignalWatcher.
+using StopWait = std::function<int(Nanos timeout)>;
 
 // Every panel whose record was accepted but whose result never came (the process was
 // killed, the power cut, or it stopped before the panel arrived) gets a fault result
@@ -55,17 +79,24 @@ class ServiceLoop {
   // returns the exit code. `signals`: blocked in every thread (main()'s first line),
   // taken here with sigtimedwait.
   int run(const sigset_t& signals);
+  // The loop alone, for the rig: time driven (the simulated clock run, or the real one
+  // waited on) in steps of at most `options.step`, cut at each scripted PLC event so that
+  // it lands on its own time; after each step the cell is looked at (results, faults,
+  // records, safety). Ends at the duration, the panel count, a stop `wait` reports, a
+  // fault of the cell itself or a wedged simulation; the cell is left to the caller.
+  LoopEnd supervise(const StopWait& wait);
+  int signal() const { return signal_; }  // the stop's signal after LoopEnd::kSignal
+  Nanos elapsed() const;                  // since the loop's start
 
  private:
   void collect();
   void log_faults();
   void take_records(Nanos now);
   void apply_plc_events(Nanos elapsed);
-  Nanos next_event_after(Nanos elapsed);
+  void log(int priority, std::string_view text, std::initializer_list<JournalField> fields = {}) const;
   // True: a fault of the cell itself; the process must end.
   bool watch_safety();
-  void run_simulated();
-  void run_real(const sigset_t& signals);
+  Nanos now() const;  // the cell's clock: simulated or monotonic
 
   const CellConfig& config_;
   Cell& cell_;
@@ -76,8 +107,8 @@ class ServiceLoop {
   sim::PlcScript script_;
   std::uint64_t written_ = 0;
   std::string status_shown_;
-  std::string stop_reason_ = "duration elapsed";
-  int exit_code_ = kExitOk;
+  Nanos start_ = 0;
+  int signal_ = 0;
 };
 
 }  // namespace markcell::host

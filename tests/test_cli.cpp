@@ -147,9 +147,9 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
                                 image + " --out " + truth_file);
   REQUIRE(made.exit_code == 0);
   const auto truth = markcell::vision::load_panel_type(truth_file);
-  REQUIRE(truth.count == 10);
+  REQUIRE(truth.count() == 10);
   const auto near = [&](int mf, int dx, int dy) {  // an engineer's click, a few pixels off MF `mf` (1-based)
-    const auto& p = truth.reference_px[static_cast<std::size_t>(mf - 1)];
+    const auto& p = truth.mfs[static_cast<std::size_t>(mf - 1)].reference_px;
     return std::to_string(std::lround(p.x()) + dx) + "," + std::to_string(std::lround(p.y()) + dy);
   };
   // Add MF 1, 2, 3 and 5; a click on the plain background adds nothing; drag the fourth
@@ -168,11 +168,11 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
   CHECK(r.output.find("saved 4 macro-features") != std::string::npos);
   const auto chosen = markcell::vision::load_panel_type(out);
   CHECK(chosen.name == "door");
-  REQUIRE(chosen.count == 4);
+  REQUIRE(chosen.count() == 4);
   const std::array<int, 4> expected{1, 2, 3, 6};
   for (std::size_t i = 0; i < 4; ++i) {
     CAPTURE(i, expected[i]);
-    const Eigen::Vector2d d = chosen.reference_px[i] - truth.reference_px[static_cast<std::size_t>(expected[i] - 1)];
+    const Eigen::Vector2d d = chosen.mfs[i].reference_px - truth.mfs[static_cast<std::size_t>(expected[i] - 1)].reference_px;
     CHECK(d.norm() < 0.3);
   }
 

@@ -77,8 +77,7 @@ PanelJob record(const char* id, int defects) {
   PanelJob job;
   job.panel_id.assign(id);
   job.panel_type.assign("door");
-  job.mf_count = 4;
-  for (int i = 0; i < 4; ++i) job.mfs_SL[static_cast<std::size_t>(i)] = Eigen::Vector3d(0.1 * i, 0.05 * (i % 2), 2.0);
+  for (int i = 0; i < 4; ++i) REQUIRE(job.mfs_SL.push_back(Eigen::Vector3d(0.1 * i, 0.05 * (i % 2), 2.0)));
   for (int d = 0; d < defects; ++d) {
     PanelJob::Defect* defect = job.defects.emplace_back();
     REQUIRE(defect != nullptr);
@@ -180,7 +179,7 @@ TEST_CASE("idle, a record waiting, the panel arrives with cycle enable: the pane
   CHECK_FALSE(h.line(kDone));
   REQUIRE(h.requests.update());
   const msg::TrackerRequest& req = h.requests.read();
-  CHECK(req.mf_count == 4);
+  CHECK(req.mfs_SL.size() == 4);
   CHECK(req.job_serial != 0);
   CHECK(h.arm.count(drivers::ArmMode::kMove) == 0);  // nothing moves before the panel is found
 }

@@ -39,7 +39,7 @@ TEST_CASE("inspection records: every bad field is rejected with its file, line a
   const auto cfg = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
   const std::string good = read_file(sim_dir() + "/recording/inspection.yaml");
   const auto job = host::parse_inspection_record(good, "inspection.yaml", cfg.panel_types);
-  CHECK(job.mf_count == 10);
+  CHECK(job.mfs_SL.size() == 10);
   CHECK(job.defects.ssize() == 3);
   CHECK(job.panel_type_index == 0);
   auto bad = [&](const std::string& from, const std::string& to) {

@@ -193,14 +193,14 @@ TEST_CASE("LK and corner refinement agree with cv::calcOpticalFlowPyrLK, cv::cor
 TEST_CASE("panel type files: round trip, and errors that name the file and key") {
   const Sequence s("paper-door");
   const PanelTypeModel m = rig::reference_panel_type(s.scenario, s.calibration, s.render);
-  REQUIRE(m.count == 10);
+  REQUIRE(m.count() == 10);
   test::TempDir dir;
   save_panel_type((dir.path() / "door.yaml").string(), m);
   const PanelTypeModel back = load_panel_type((dir.path() / "door.yaml").string());
   CHECK(back.name == "door");
-  CHECK(back.count == 10);
-  CHECK((back.reference_px[3] - m.reference_px[3]).norm() < 1e-9);
-  CHECK(back.templates[9].v[20] == m.templates[9].v[20]);
+  CHECK(back.count() == 10);
+  CHECK((back.mfs[3].reference_px - m.mfs[3].reference_px).norm() < 1e-9);
+  CHECK(back.mfs[9].template_patch.v[20] == m.mfs[9].template_patch.v[20]);
   CHECK(back.search_x == 400);
   const std::string bad = dir.write("bad.yaml", "%YAML:1.0\n---\npanel_type: door\nimage_width: 640\n");
   CHECK_THROWS_WITH(load_panel_type(bad), Catch::Contains("bad.yaml") && Catch::Contains("'image_height'"));
@@ -216,7 +216,7 @@ TEST_CASE("the tracker finds the door's MFs, follows the panel within a millimet
   REQUIRE(first.status == TrackStatus::kReinitialised);
   CHECK(first.tracked >= 6);
   // Each MF found is where the camera model puts it (sub-pixel), in both views.
-  for (int i = 0; i < m.count; ++i) {
+  for (int i = 0; i < m.count(); ++i) {
     const auto& o = first.mfs[static_cast<std::size_t>(i)];
     if (!o.valid) continue;
     const Eigen::Vector3d p = s.motion.X_CamR_Panel(0) * s.panel.macro_features[static_cast<std::size_t>(i)];
@@ -251,7 +251,7 @@ TEST_CASE("an occluded MF drops out without disturbing the pose and comes back w
   REQUIRE(tracker.process(0, 0, l, r).status == TrackStatus::kReinitialised);
   // A pole in front of the first MF that was found.
   int target = -1;
-  for (int i = 0; i < m.count && target < 0; ++i)
+  for (int i = 0; i < m.count() && target < 0; ++i)
     if (tracker.last().mfs[static_cast<std::size_t>(i)].valid) target = i;
   const Eigen::Vector3d mf = s.motion.X_CamR_Panel(millis(200)) * s.panel.macro_features[static_cast<std::size_t>(target)];
   const Eigen::Vector3d near = mf * (2.0 / mf.z());  // on the right camera's ray, 2 m away
@@ -278,14 +278,14 @@ TEST_CASE("disparity to 0.05 px, MF positions in P averaged over frames, a pose 
   // and their positions, levered out to the dings below them.
   Tracked s("paper-door");
   PanelTracker& tracker = s.tracker;
-  const int n = s.model.count;
+  const int n = s.model.count();
   // The shape error of a set of MF positions in P: rms residual of its best rigid fit onto
   // the true positions at the frame that set P up (P's own placement does not count).
   auto shape_error = [&](const PoseEstimate& e) {
     std::vector<Eigen::Vector3d> est, truth;
     for (int i = 0; i < n; ++i)
-      if (e.reference_known[static_cast<std::size_t>(i)]) {
-        est.push_back(e.reference_P[static_cast<std::size_t>(i)]);
+      if (e.mfs[static_cast<std::size_t>(i)].reference_known) {
+        est.push_back(e.mfs[static_cast<std::size_t>(i)].reference_P);
         truth.push_back(s.motion.X_CamR_Panel(0) * s.panel.macro_features[static_cast<std::size_t>(i)]);
       }
     return markcell::geometry::fit_rigid(est, truth).rms;

@@ -243,24 +243,27 @@ void MarkingSequence::start_panel(Nanos now) {
 void fit_pose_to_record(const msg::TrackerRequest& job, const msg::PoseEstimate& e, const IntercalibrationLimits& limits,
                         PoseFits& out) noexcept {
   out.job_serial = job.job_serial;
-  const auto n = static_cast<std::size_t>(std::clamp(std::min(job.mf_count, e.count), 0, msg::kMaxMacroFeatures));
-  out.known = intercalibrate(std::span(job.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
-                             std::span(e.reference_known.data(), n), limits);
+  // The record's MFs and the estimate's, paired by index, as the inter-calibration takes them.
+  const std::size_t n = std::min(job.mfs_SL.size(), e.mfs.size());
+  std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> mfs_P{};
+  std::array<bool, msg::kMaxMacroFeatures> known{};
   out.measured_mask.fill(false);
   out.measured_count = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    out.measured_mask[i] = e.reference_known[i] && e.reference_observed[i] >= kMeasuredFrames;
+    mfs_P[i] = e.mfs[i].reference_P;
+    known[i] = e.mfs[i].reference_known;
+    out.measured_mask[i] = known[i] && e.mfs[i].reference_observed >= kMeasuredFrames;
     out.measured_count += out.measured_mask[i] ? 1 : 0;
   }
-  out.measured = intercalibrate(std::span(job.mfs_SL.data(), n), std::span(e.reference_P.data(), n),
-                                std::span(out.measured_mask.data(), n), limits);
+  const std::span<const Eigen::Vector3d> mfs_SL(job.mfs_SL.data(), n), in_P(mfs_P.data(), n);
+  out.known = intercalibrate(mfs_SL, in_P, std::span(known.data(), n), limits);
+  out.measured = intercalibrate(mfs_SL, in_P, std::span(out.measured_mask.data(), n), limits);
 }
 
 void MarkingSequence::write_tracker_request(msg::TrackerRequest& req) const {
   req.reset_serial = reset_serial_;
   req.panel_type = job_.panel_type_index;
   req.job_serial = job_serial_;
-  req.mf_count = job_.mf_count;
   req.mfs_SL = job_.mfs_SL;
 }
 
@@ -300,15 +303,15 @@ void MarkingSequence::on_estimate(const msg::PoseEstimate& e, const PoseFits& fi
     s.reference_time = e.reference_time;
     s.centre_P = c;
     s.inliers = e.inliers;
-    s.count = e.count;
+    s.count = e.mfs.ssize();
     ++prediction_count_;
   }
   // The MFs the fit used set the filter's measurement noise (their layout: how well the
   // pose is pinned down in each direction).
   std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> used{};
   std::size_t n = 0;
-  for (int i = 0; i < e.count; ++i)
-    if (e.mfs[static_cast<std::size_t>(i)].inlier) used[n++] = e.reference_P[static_cast<std::size_t>(i)];
+  for (const msg::MacroFeatureObservation& mf : e.mfs)
+    if (mf.inlier) used[n++] = mf.reference_P;
   predictor_.update(e.time, e.X_CamR_P, std::span(used.data(), n));
   if (state_ == MarkingState::kAcquire && predictor_.ready()) {
     state_ = MarkingState::kHold;
@@ -413,13 +416,12 @@ void MarkingSequence::hold(Nanos now, int mfs_in_view) {
 }
 
 bool MarkingSequence::intercalibrate_panel(const msg::PoseEstimate& e, const PoseFits& fits, Nanos now) {
-  const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
+  const std::size_t n = std::min(job_.mfs_SL.size(), e.mfs.size());
   if (panel_frame_count_ < kPanelFrameLog) {
     PanelFrameRecord& frame = panel_frame_log_[panel_frame_count_++];
     frame.reference_time = e.reference_time;
-    frame.count = e.count;
-    frame.mfs_P = e.reference_P;
-    frame.found = e.reference_known;
+    frame.mfs.clear();
+    for (const msg::MacroFeatureObservation& mf : e.mfs) frame.mfs.push_back({mf.reference_P, mf.reference_known});
   }
   const Intercalibration& fit = fits.known;  // made on the vision lane with this pose
   intercal_serial_ = e.reference_serial;
@@ -464,21 +466,21 @@ bool MarkingSequence::intercalibrate_panel(const msg::PoseEstimate& e, const Pos
   Eigen::Vector3d anchor = Eigen::Vector3d::Zero();
   int count = 0;
   for (std::size_t i = 0; i < n; ++i)
-    if (e.reference_known[i]) anchor += e.reference_P[i], ++count;
+    if (e.mfs[i].reference_known) anchor += e.mfs[i].reference_P, ++count;
   predictor_.reset(anchor / std::max(count, 1));
   if (state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying) settled_since_ = -1;
   return true;
 }
 
 void MarkingSequence::place_unmeasured_mfs(const msg::PoseEstimate& e, const Intercalibration& ic) {
-  const auto n = static_cast<std::size_t>(std::min(job_.mf_count, e.count));
+  const std::size_t n = std::min(job_.mfs_SL.size(), e.mfs.size());
   msg::TrackerRequest& req = tracker_requests_.write_slot();
   write_tracker_request(req);
   req.reference_serial = e.reference_serial;
   req.placement_serial = ++placement_serial_;
   req.known.fill(false);
   for (std::size_t i = 0; i < n; ++i) {
-    req.known[i] = !e.reference_known[i] || e.reference_observed[i] == 0;
+    req.known[i] = !e.mfs[i].reference_known || e.mfs[i].reference_observed == 0;
     req.reference_P[i] = ic.X_P_SL * job_.mfs_SL[i];
   }
   tracker_requests_.publish();
@@ -636,7 +638,7 @@ void MarkingSequence::panel_without_record(Nanos now) {
   result_.reason.assign("panel present without an inspection record");
   present_since_ = -1;
   job_.defects.clear();  // (no copy of a whole empty job on the control lane)
-  job_.mf_count = 0;
+  job_.mfs_SL.clear();
   finish_panel(now);
 }
 

@@ -80,9 +80,9 @@ void ArmOverlaySource::paint(vision::StereoFrameRef& frame) noexcept {
 void ArmOverlaySource::tracked(const msg::PoseEstimate& e) noexcept {
   if (!drawn_ || !e.has_pose()) return;
   int hidden = 0;
-  for (int i = 0; i < e.count; ++i) {
-    if (!e.reference_known[static_cast<std::size_t>(i)]) continue;
-    const Eigen::Vector3d p_CamR = e.X_CamR_P * e.reference_P[static_cast<std::size_t>(i)];
+  for (const msg::MacroFeatureObservation& mf : e.mfs) {
+    if (!mf.reference_known) continue;
+    const Eigen::Vector3d p_CamR = e.X_CamR_P * mf.reference_P;
     const Eigen::Vector3d p_CamL = X_CamL_CamR_ * p_CamR;
     bool h = false;
     for (std::size_t k = 0; k < drawn_CamR_.size() && !h; ++k)

@@ -264,11 +264,11 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   std::vector<std::pair<Nanos, Eigen::Isometry3d>> placements;
   for (const auto& frame : run.panel_frames) {
     std::vector<Eigen::Vector3d> a, b;
-    const auto n = std::min(static_cast<std::size_t>(std::max(frame.count, 0)), panel.macro_features.size());
+    const std::size_t n = std::min(frame.mfs.size(), panel.macro_features.size());
     for (std::size_t k = 0; k < n; ++k)
-      if (frame.found[k]) {
+      if (frame.mfs[k].found) {
         a.push_back(truth.at(frame.reference_time) * panel.macro_features[k]);
-        b.push_back(frame.mfs_P[k]);
+        b.push_back(frame.mfs[k].p_P);
       }
     // Robust: a search can take another corner for an MF (a person in front); the
     // inter-calibration leaves it out, and so does this.

@@ -259,7 +259,7 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
       const msg::PoseEstimate& e = tracker.process(f.seq, f.time, f.left, f.right);
       if (e.status != msg::TrackStatus::kReinitialised) continue;
       cv::Mat l = to_bgr(f.left), r = to_bgr(f.right), both;
-      for (int k = 0; k < e.count; ++k) {
+      for (int k = 0; k < e.mfs.ssize(); ++k) {
         const auto& o = e.mfs[static_cast<std::size_t>(k)];
         if (!o.valid) continue;
         const cv::Scalar c(0, 200 - 15 * k, 40 + 20 * k);
@@ -284,11 +284,11 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
             read_inspection_record((std::filesystem::path(report.recording) / "inspection.yaml").string(), config.panel_types);
         cv::Mat area = to_bgr(f.left);
         std::vector<cv::Point> rec_pts, est_pts;
-        for (int k = 0; k < e.count; ++k) {
-          const Eigen::Vector2d a = rig.project(vision::Camera::kLeft, ic.X_P_SL * job.mfs_SL[static_cast<std::size_t>(k)]);
+        for (std::size_t k = 0; k < std::min(e.mfs.size(), job.mfs_SL.size()); ++k) {
+          const Eigen::Vector2d a = rig.project(vision::Camera::kLeft, ic.X_P_SL * job.mfs_SL[k]);
           rec_pts.emplace_back(static_cast<int>(std::lround(a.x())), static_cast<int>(std::lround(a.y())));
-          if (e.mfs[static_cast<std::size_t>(k)].valid) {
-            const Eigen::Vector2d b = rig.project(vision::Camera::kLeft, e.mfs[static_cast<std::size_t>(k)].p_CamR);
+          if (e.mfs[k].valid) {
+            const Eigen::Vector2d b = rig.project(vision::Camera::kLeft, e.mfs[k].p_CamR);
             est_pts.emplace_back(static_cast<int>(std::lround(b.x())), static_cast<int>(std::lround(b.y())));
           }
         }

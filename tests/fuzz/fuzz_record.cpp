@@ -20,7 +20,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   try {
     const markcell::control::PanelJob job = markcell::host::parse_inspection_record(text, "fuzz.yaml", types);
     if (job.defects.overflowed() || job.defects.ssize() > markcell::control::kMaxDefects) std::abort();
-    if (job.mf_count != types[static_cast<std::size_t>(job.panel_type_index)].macro_features) std::abort();
+    if (job.mfs_SL.ssize() != types[static_cast<std::size_t>(job.panel_type_index)].macro_features) std::abort();
     if (!markcell::host::panel_id_problem(job.panel_id.view()).empty()) std::abort();
   } catch (const markcell::host::RecordInvalid& e) {
     if (std::string(e.what()).rfind("fuzz.yaml", 0) != 0) std::abort();  // every error names the file

@@ -29,12 +29,14 @@ void snap_to_corner(const Pyramid& image, Eigen::Vector2d& p, int radius) {
   p = best_p;
 }
 
-cv::Mat patches_to_mat(const std::array<Patch, kMaxMacroFeatures>& patches, int count) {
-  const int r = patches[0].radius;
+// One row per MF: the patch `which` picks of it.
+template <typename Which>
+cv::Mat patches_to_mat(const PanelTypeModel& model, Which which) {
+  const int r = which(model.mfs[0]).radius;
   const int n = (2 * r + 1) * (2 * r + 1);
-  cv::Mat m(count, n, CV_32F);
-  for (int i = 0; i < count; ++i)
-    for (int k = 0; k < n; ++k) m.at<float>(i, k) = patches[static_cast<std::size_t>(i)].v[static_cast<std::size_t>(k)];
+  cv::Mat m(model.count(), n, CV_32F);
+  for (int i = 0; i < model.count(); ++i)
+    for (int k = 0; k < n; ++k) m.at<float>(i, k) = which(model.mfs[static_cast<std::size_t>(i)]).v[static_cast<std::size_t>(k)];
   return m;
 }
 }  // namespace
@@ -60,22 +62,22 @@ PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference
   pyramid.build(reference_left);
   PanelTypeModel m;
   m.name = name;
-  m.count = static_cast<int>(positions.size());
   m.image_width = reference_left.cols;
   m.image_height = reference_left.rows;
   m.search_x = search_x;
   m.search_y = search_y;
-  for (int i = 0; i < m.count; ++i) {
+  for (int i = 0; i < static_cast<int>(positions.size()); ++i) {
     const auto k = static_cast<std::size_t>(i);
+    PanelTypeModel::Mf& mf = *m.mfs.emplace_back();  // (at most kMaxMacroFeatures: checked above)
     Eigen::Vector2d p = positions[k];
     if (snap_radius > 0) snap_to_corner(pyramid, p, snap_radius);
     if (!refine_corner(pyramid, p, 5))
       throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + " at (" +
                                   std::to_string(positions[k].x()) + ", " + std::to_string(positions[k].y()) +
                                   ") has no corner within 5 px or is too close to the border");
-    m.reference_px[k] = p;
-    if (!extract_patch(pyramid, 0, p, kTemplateRadius, m.templates[k]) ||
-        !extract_patch(pyramid, kCoarseLevel, p / coarse_scale(), kTemplateRadius / 2 + 1, m.coarse_templates[k]))
+    mf.reference_px = p;
+    if (!extract_patch(pyramid, 0, p, kTemplateRadius, mf.template_patch) ||
+        !extract_patch(pyramid, kCoarseLevel, p / coarse_scale(), kTemplateRadius / 2 + 1, mf.coarse_template))
       throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) +
                                   " is too close to the image border for its template");
   }
@@ -87,14 +89,14 @@ void save_panel_type(const std::string& path, const PanelTypeModel& m) {
   if (!fs.isOpened()) throw std::runtime_error(path + ": cannot write");
   fs << "panel_type" << m.name << "image_width" << m.image_width << "image_height" << m.image_height;
   fs << "search_x_px" << m.search_x << "search_y_px" << m.search_y;
-  cv::Mat px(m.count, 2, CV_64F);
-  for (int i = 0; i < m.count; ++i) {
-    px.at<double>(i, 0) = m.reference_px[static_cast<std::size_t>(i)].x();
-    px.at<double>(i, 1) = m.reference_px[static_cast<std::size_t>(i)].y();
+  cv::Mat px(m.count(), 2, CV_64F);
+  for (int i = 0; i < m.count(); ++i) {
+    px.at<double>(i, 0) = m.mfs[static_cast<std::size_t>(i)].reference_px.x();
+    px.at<double>(i, 1) = m.mfs[static_cast<std::size_t>(i)].reference_px.y();
   }
   fs << "macro_features" << px;
-  fs << "templates" << patches_to_mat(m.templates, m.count);
-  fs << "coarse_templates" << patches_to_mat(m.coarse_templates, m.count);
+  fs << "templates" << patches_to_mat(m, [](const PanelTypeModel::Mf& mf) -> const Patch& { return mf.template_patch; });
+  fs << "coarse_templates" << patches_to_mat(m, [](const PanelTypeModel::Mf& mf) -> const Patch& { return mf.coarse_template; });
 }
 
 PanelTypeModel load_panel_type(const std::string& path) {
@@ -118,20 +120,20 @@ PanelTypeModel load_panel_type(const std::string& path) {
   if (px.cols != 2 || px.rows < 3 || px.rows > kMaxMacroFeatures || px.type() != CV_64F)
     throw std::runtime_error(path + ": 'macro_features' must be an Nx2 double matrix, 3 <= N <= " +
                              std::to_string(kMaxMacroFeatures));
-  m.count = px.rows;
-  auto read_patches = [&](const cv::Mat& mat, const char* key, int radius, std::array<Patch, kMaxMacroFeatures>& out) {
+  for (int i = 0; i < px.rows; ++i) m.mfs.emplace_back()->reference_px = {px.at<double>(i, 0), px.at<double>(i, 1)};
+  auto read_patches = [&](const cv::Mat& mat, const char* key, int radius, Patch PanelTypeModel::Mf::*out) {
     const int n = (2 * radius + 1) * (2 * radius + 1);
-    if (mat.rows != m.count || mat.cols != n || mat.type() != CV_32F)
-      throw std::runtime_error(path + ": '" + key + "' must be " + std::to_string(m.count) + "x" + std::to_string(n) +
+    if (mat.rows != m.count() || mat.cols != n || mat.type() != CV_32F)
+      throw std::runtime_error(path + ": '" + key + "' must be " + std::to_string(m.count()) + "x" + std::to_string(n) +
                                " float, is " + std::to_string(mat.rows) + "x" + std::to_string(mat.cols));
-    for (int i = 0; i < m.count; ++i) {
-      out[static_cast<std::size_t>(i)].radius = radius;
-      for (int k = 0; k < n; ++k) out[static_cast<std::size_t>(i)].v[static_cast<std::size_t>(k)] = mat.at<float>(i, k);
+    for (int i = 0; i < m.count(); ++i) {
+      Patch& patch = m.mfs[static_cast<std::size_t>(i)].*out;
+      patch.radius = radius;
+      for (int k = 0; k < n; ++k) patch.v[static_cast<std::size_t>(k)] = mat.at<float>(i, k);
     }
   };
-  read_patches(t, "templates", kTemplateRadius, m.templates);
-  read_patches(ct, "coarse_templates", kTemplateRadius / 2 + 1, m.coarse_templates);
-  for (int i = 0; i < m.count; ++i) m.reference_px[static_cast<std::size_t>(i)] = {px.at<double>(i, 0), px.at<double>(i, 1)};
+  read_patches(t, "templates", kTemplateRadius, &PanelTypeModel::Mf::template_patch);
+  read_patches(ct, "coarse_templates", kTemplateRadius / 2 + 1, &PanelTypeModel::Mf::coarse_template);
   if (m.search_x < 0 || m.search_y < 0) throw std::runtime_error(path + ": search_x_px and search_y_px must be >= 0");
   return m;
 }
@@ -152,8 +154,8 @@ PanelTracker::PanelTracker(const StereoRig& rig, const PanelTypeModel& model, co
                         "panel type '" << model.name << "' was picked on " << model.image_width << "x"
                                        << model.image_height << " images, the cameras give " << rig.width() << "x"
                                        << rig.height());
-  MARKCELL_THROW_UNLESS(params.min_macro_features >= 3 && params.min_macro_features <= model.count,
-                        "min_macro_features=" << params.min_macro_features << " with " << model.count << " MFs");
+  MARKCELL_THROW_UNLESS(params.min_macro_features >= 3 && params.min_macro_features <= model.count(),
+                        "min_macro_features=" << params.min_macro_features << " with " << model.count() << " MFs");
 }
 
 void PanelTracker::reset() {
@@ -165,7 +167,7 @@ void PanelTracker::reset() {
 }
 
 void PanelTracker::set_reference(int mf, const Eigen::Vector3d& p_P) {
-  if (mf < 0 || mf >= model_.count) return;
+  if (mf < 0 || mf >= model_.count()) return;
   const auto k = static_cast<std::size_t>(mf);
   reference_P_[k] = first_P_[k] = sum_P_[k] = p_P;
   samples_[k] = 1;
@@ -180,14 +182,16 @@ const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const c
   estimate_.seq = seq;
   estimate_.time = time;
   estimate_.reason = {};
-  for (auto& o : estimate_.mfs) o = MacroFeatureObservation{};
+  estimate_.mfs.clear();
+  for (int i = 0; i < model_.count(); ++i) estimate_.mfs.emplace_back();
   if (searching_ || !have_previous_) reinitialise();
   else track();
   have_previous_ = true;
-  estimate_.count = model_.count;
-  estimate_.reference_P = reference_P_;
-  estimate_.reference_known = known_;
-  estimate_.reference_observed = observed_;
+  for (std::size_t k = 0; k < estimate_.mfs.size(); ++k) {
+    estimate_.mfs[k].reference_P = reference_P_[k];
+    estimate_.mfs[k].reference_known = known_[k];
+    estimate_.mfs[k].reference_observed = observed_[k];
+  }
   return estimate_;
 }
 
@@ -250,9 +254,9 @@ void PanelTracker::reinitialise() {
     for (int dx = -rx; dx <= rx; ++dx) {
       double score = 0;
       int seen = 0;
-      for (int i = 0; i < model_.count; ++i) {
-        const Eigen::Vector2d& r = model_.reference_px[static_cast<std::size_t>(i)];
-        const double c = ncc(model_.coarse_templates[static_cast<std::size_t>(i)], L, kCoarseLevel,
+      for (int i = 0; i < model_.count(); ++i) {
+        const Eigen::Vector2d& r = model_.mfs[static_cast<std::size_t>(i)].reference_px;
+        const double c = ncc(model_.mfs[static_cast<std::size_t>(i)].coarse_template, L, kCoarseLevel,
                              static_cast<int>(std::lround(r.x() / s)) + dx, static_cast<int>(std::lround(r.y() / s)) + dy);
         if (c > 0) score += c, ++seen;
       }
@@ -265,20 +269,20 @@ void PanelTracker::reinitialise() {
   // 2. Each MF at full resolution around its shifted reference, then its corner; 3. its
   //    partner in the right view along the epipolar line; 4. triangulated.
   int found = 0;
-  for (int i = 0; i < model_.count; ++i) {
+  for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     known_[k] = false;
     tracked_[k] = false;
     observed_[k] = 0;
     set_up_[k] = false;
     if (best_score <= 0) continue;
-    const Eigen::Vector2d guess = model_.reference_px[k] + Eigen::Vector2d(best_dx * s, best_dy * s);
+    const Eigen::Vector2d guess = model_.mfs[k].reference_px + Eigen::Vector2d(best_dx * s, best_dy * s);
     double best = -1;
     Eigen::Vector2d p = guess;
     const int gx = static_cast<int>(std::lround(guess.x())), gy = static_cast<int>(std::lround(guess.y()));
     for (int y = gy - s - 2; y <= gy + s + 2; ++y)
       for (int x = gx - s - 2; x <= gx + s + 2; ++x) {
-        const double c = ncc(model_.templates[k], L, 0, x, y);
+        const double c = ncc(model_.mfs[k].template_patch, L, 0, x, y);
         if (c > best) best = c, p = {x, y};
       }
     if (best < params_.min_ncc || !refine_corner(L, p, params_.corner_radius)) continue;
@@ -296,7 +300,7 @@ void PanelTracker::reinitialise() {
     prev_left_[k] = p;
     prev_right_[k] = r;
     velocity_[k].setZero();
-    patch_[k] = model_.templates[k];
+    patch_[k] = model_.mfs[k].template_patch;
     extract_patch(L, 0, p, kTemplateRadius, patch_[k]);
     ++found;
   }
@@ -311,8 +315,8 @@ void PanelTracker::reinitialise() {
     searching_ = true;
     return;
   }
-  for (int i = 0; i < model_.count; ++i)
-    if (!known_[static_cast<std::size_t>(i)]) patch_[static_cast<std::size_t>(i)] = model_.templates[static_cast<std::size_t>(i)];
+  for (int i = 0; i < model_.count(); ++i)
+    if (!known_[static_cast<std::size_t>(i)]) patch_[static_cast<std::size_t>(i)] = model_.mfs[static_cast<std::size_t>(i)].template_patch;
   estimate_.status = TrackStatus::kReinitialised;
   estimate_.X_CamR_P = Eigen::Isometry3d::Identity();
   ++estimate_.reference_serial;
@@ -324,7 +328,7 @@ void PanelTracker::reinitialise() {
 void PanelTracker::track() {
   const Pyramid& prev = left_[cur_ ^ 1];
   const Pyramid& L = left_[cur_];
-  for (int i = 0; i < model_.count; ++i) {
+  for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (!tracked_[k]) continue;
     tracked_[k] = false;
@@ -362,7 +366,7 @@ void PanelTracker::fit_pose() {
   std::array<int, kMaxMacroFeatures> which{};
   std::array<bool, kMaxMacroFeatures> inlier{};
   std::size_t n = 0;
-  for (int i = 0; i < model_.count; ++i) {
+  for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (!estimate_.mfs[k].valid || !known_[k]) continue;
     a[n] = reference_P_[k];
@@ -411,7 +415,7 @@ void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
   // it. (MFs placed through the record are left out of that fit: they carry the first
   // inter-calibration's errors, levered out from the few MFs in view then.)
   const Eigen::Isometry3d X_P_CamR = X_CamR_P.inverse();
-  for (int i = 0; i < model_.count; ++i) {
+  for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (!estimate_.mfs[k].inlier || !known_[k]) continue;
     observed_[k] = std::min(observed_[k] + 1, 1 << 30);
@@ -421,7 +425,7 @@ void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
   }
   std::array<Eigen::Vector3d, kMaxMacroFeatures> mean{}, first{};
   std::size_t n = 0;
-  for (int i = 0; i < model_.count; ++i) {
+  for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (!known_[k] || !set_up_[k]) continue;  // P is where the MFs found at set-up put it
     mean[n] = sum_P_[k] / samples_[k];
@@ -429,7 +433,7 @@ void PanelTracker::refine_reference(const Eigen::Isometry3d& X_CamR_P) {
   }
   const geometry::RigidFit pin = geometry::fit_rigid(std::span(mean.data(), n), std::span(first.data(), n));
   if (!pin.valid) return;
-  for (int i = 0; i < model_.count; ++i) {
+  for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (known_[k]) reference_P_[k] = pin.X_B_A * (sum_P_[k] / samples_[k]);
   }
@@ -440,7 +444,7 @@ void PanelTracker::reacquire() {
   // known: look where the pose puts them; accept a corner that matches its template,
   // pairs on the epipolar line and lands where the pose says.
   const Pyramid& L = left_[cur_];
-  for (int i = 0; i < model_.count; ++i) {
+  for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (tracked_[k] || !known_[k]) continue;
     const Eigen::Vector3d p = estimate_.X_CamR_P * reference_P_[k];

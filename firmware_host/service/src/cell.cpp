@@ -127,7 +127,6 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
   if (v->requests->update()) {
     const msg::TrackerRequest& r = v->requests->read();
     v->job.job_serial = r.job_serial;
-    v->job.mf_count = r.mf_count;
     v->job.mfs_SL = r.mfs_SL;
     if (r.reset_serial != v->reset_seen) {
       v->reset_seen = r.reset_serial;
@@ -139,8 +138,9 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
       v->hint_seen = r.placement_serial;
       // Placed anew: MFs the tracker has no position for, or only a placed one it has not
       // measured yet; never one it has measured.
-      for (std::size_t i = 0; i < msg::kMaxMacroFeatures; ++i)
-        if (r.known[i] && (!t.reference_known()[i] || t.last().reference_observed[i] == 0))
+      const auto& mfs = t.last().mfs;
+      for (std::size_t i = 0; i < mfs.size(); ++i)
+        if (r.known[i] && (!mfs[i].reference_known || mfs[i].reference_observed == 0))
           t.set_reference(static_cast<int>(i), r.reference_P[i]);
     }
   }

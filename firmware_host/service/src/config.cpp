@@ -624,9 +624,9 @@ void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
         if (!panel.file.empty()) {
           try {
             const auto model = vision::load_panel_type(panel.file);
-            if (model.count != panel.macro_features)
+            if (model.count() != panel.macro_features)
               r.error(kv.second["file"], TP + ".file",
-                      "has " + std::to_string(model.count) + " macro-features, macro_features says " +
+                      "has " + std::to_string(model.count()) + " macro-features, macro_features says " +
                           std::to_string(panel.macro_features));
             if (model.name != name)
               r.error(kv.second["file"], TP + ".file", "is the panel type '" + model.name + "', not '" + name + "'");

@@ -97,9 +97,9 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
   if (static_cast<int>(mfs.size()) != panel->macro_features)
     fail(path, mfs, "macro_features",
          std::to_string(mfs.size()) + " given, panel type '" + type + "' has " + std::to_string(panel->macro_features));
-  job.mf_count = static_cast<int>(mfs.size());
   for (std::size_t i = 0; i < mfs.size(); ++i)
-    job.mfs_SL[i] = point(path, mfs[i], "macro_features[" + std::to_string(i) + "]");
+    if (!job.mfs_SL.push_back(point(path, mfs[i], "macro_features[" + std::to_string(i) + "]")))
+      fail(path, mfs, "macro_features", std::to_string(mfs.size()) + " given, at most " + std::to_string(msg::kMaxMacroFeatures));
   const YAML::Node defects = root["defects"];
   if (!defects.IsSequence()) fail(path, defects.IsDefined() ? defects : root, "defects", "expected a list (may be empty)");
   if (defects.size() > static_cast<std::size_t>(control::kMaxDefects))

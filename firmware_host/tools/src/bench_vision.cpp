@@ -71,7 +71,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
     // (here from the rig's truth), so that they are picked up as they come into view.
     if (e.status == msg::TrackStatus::kReinitialised) {
       const Nanos t = static_cast<Nanos>(static_cast<double>(i) * 1e9 / fps) % scenario.duration;
-      for (int m = 0; m < model.count; ++m)
+      for (int m = 0; m < model.count(); ++m)
         if (!tracker.reference_known()[static_cast<std::size_t>(m)])
           tracker.set_reference(m, motion.X_CamR_Panel(t) * panel.macro_features[static_cast<std::size_t>(m)]);
       ++reinits;
@@ -84,7 +84,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
   }
   const double m_ours = percentile(ours, 0.5), p99_ours = percentile(ours, 0.99), max_ours = percentile(ours, 1.0);
   const double m_floor = percentile(floor, 0.5), p99_floor = percentile(floor, 0.99);
-  std::printf("vision task per stereo pair, %dx%d, %d MFs (%s), %zu pairs, one thread:\n", rig.width(), rig.height(), model.count,
+  std::printf("vision task per stereo pair, %dx%d, %d MFs (%s), %zu pairs, one thread:\n", rig.width(), rig.height(), model.count(),
               options.scenario.c_str(), ours.size());
   std::printf("  markcell (pyramids + tracking + triangulation + pose)  median %.3f ms  p99 %.3f ms  max %.3f ms\n", m_ours, p99_ours,
               max_ours);
@@ -97,7 +97,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
     const nlohmann::ordered_json doc{{"pairs", ours.size()},
                                      {"width", rig.width()},
                                      {"height", rig.height()},
-                                     {"macro_features", model.count},
+                                     {"macro_features", model.count()},
                                      {"scenario", options.scenario},
                                      {"markcell_ms", {{"median", m_ours}, {"p99", p99_ours}, {"max", max_ours}}},
                                      {"floor_ms", {{"median", m_floor}, {"p99", p99_floor}}},

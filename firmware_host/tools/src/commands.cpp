@@ -113,10 +113,10 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     }
   }
   vision::save_panel_type(out, model);
-  std::cout << "panel type '" << model.name << "': " << model.count << " macro-features\n";
-  for (int i = 0; i < model.count; ++i)
-    std::printf("  MF %2d at (%.2f, %.2f) px\n", i + 1, model.reference_px[static_cast<std::size_t>(i)].x(),
-                model.reference_px[static_cast<std::size_t>(i)].y());
+  std::cout << "panel type '" << model.name << "': " << model.count() << " macro-features\n";
+  for (int i = 0; i < model.count(); ++i)
+    std::printf("  MF %2d at (%.2f, %.2f) px\n", i + 1, model.mfs[static_cast<std::size_t>(i)].reference_px.x(),
+                model.mfs[static_cast<std::size_t>(i)].reference_px.y());
   std::cout << "wrote " << out << "\n";
   return 0;
 }

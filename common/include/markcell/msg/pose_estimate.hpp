@@ -2,12 +2,12 @@
 // The vision lane's message to the marking task: the panel's pose in one stereo pair and
 // what it rests on. A leaf (plain Eigen, no OpenCV): the tracker in vision/ publishes it,
 // control/ reads it, neither includes the other (uORB's msg/ plays this role in PX4).
-#include <array>
 #include <cstdint>
 #include <string_view>
 
 #include <Eigen/Geometry>
 
+#include "markcell/common/fixed_vector.hpp"
 #include "markcell/common/time.hpp"
 
 namespace markcell::msg {
@@ -32,11 +32,21 @@ inline std::string_view to_string(TrackStatus s) {
   return "?";
 }
 
+// One macro-feature of the panel type: what this frame saw of it, and where the tracker
+// holds it in P.
 struct MacroFeatureObservation {
   bool valid = false;     // seen in both views this frame
   bool inlier = false;    // and consistent with the rigid motion
   Eigen::Vector2d left = Eigen::Vector2d::Zero(), right = Eigen::Vector2d::Zero();  // observed pixels
   Eigen::Vector3d p_CamR = Eigen::Vector3d::Zero();
+  // Its position in P (where known): what the inter-calibration pairs with the inspection
+  // record. Copied with every estimate so that a reader across lanes never needs the
+  // tracker itself.
+  Eigen::Vector3d reference_P = Eigen::Vector3d::Zero();
+  bool reference_known = false;
+  // Frames it was seen in and used since P was set up (its position in P averages them);
+  // 0 for an MF only placed through the inspection record so far.
+  int reference_observed = 0;
 };
 
 struct PoseEstimate {
@@ -50,16 +60,7 @@ struct PoseEstimate {
   int tracked = 0;                  // MFs seen in both views
   int inliers = 0;                  // MFs used for the pose
   double rms = 0;                   // residual of the rigid fit, metres
-  std::array<MacroFeatureObservation, kMaxMacroFeatures> mfs{};
-  // The MFs' positions in P (where known): what the inter-calibration pairs with the
-  // inspection record. Copied with every estimate so that a reader across lanes never
-  // needs the tracker itself.
-  std::array<Eigen::Vector3d, kMaxMacroFeatures> reference_P{};
-  std::array<bool, kMaxMacroFeatures> reference_known{};
-  // Frames each MF was seen in and used since P was set up (its position in P averages
-  // them); 0 for an MF only placed through the inspection record so far.
-  std::array<int, kMaxMacroFeatures> reference_observed{};
-  int count = 0;                    // MFs of the panel type
+  FixedVector<MacroFeatureObservation, kMaxMacroFeatures> mfs;  // one per MF of the panel type, in its order
   bool has_pose() const { return status == TrackStatus::kTracking || status == TrackStatus::kReinitialised; }
 };
 

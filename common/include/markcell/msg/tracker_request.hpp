@@ -7,6 +7,7 @@
 
 #include <Eigen/Geometry>
 
+#include "markcell/common/fixed_vector.hpp"
 #include "markcell/msg/pose_estimate.hpp"
 
 namespace markcell::msg {
@@ -25,8 +26,7 @@ struct TrackerRequest {
   // The panel's record as the vision lane needs it to fit each pose to it (PoseFits):
   // which job (0: none), and the record's MFs in the scanner's frame.
   std::uint32_t job_serial = 0;
-  int mf_count = 0;
-  std::array<Eigen::Vector3d, kMaxMacroFeatures> mfs_SL{};
+  FixedVector<Eigen::Vector3d, kMaxMacroFeatures> mfs_SL;
 };
 
 }  // namespace markcell::msg

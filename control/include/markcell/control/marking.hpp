@@ -46,8 +46,7 @@ struct PanelJob {
   FixedString<63> panel_id;
   FixedString<31> panel_type;
   int panel_type_index = 0;  // in the configuration's panel_types: which tracker
-  int mf_count = 0;
-  std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> mfs_SL{};
+  FixedVector<Eigen::Vector3d, msg::kMaxMacroFeatures> mfs_SL;  // the record's MFs, the panel type's order
   struct Defect {
     int id = 0;
     FixedVector<Eigen::Vector3d, kMaxDefectPoints> points_SL;  // its surface points
@@ -237,9 +236,11 @@ struct PredictionSample {
 // live in the same P, so it moves no spray).
 struct PanelFrameRecord {
   Nanos reference_time = 0;
-  int count = 0;
-  std::array<Eigen::Vector3d, msg::kMaxMacroFeatures> mfs_P{};
-  std::array<bool, msg::kMaxMacroFeatures> found{};
+  struct Mf {
+    Eigen::Vector3d p_P = Eigen::Vector3d::Zero();
+    bool found = false;  // found then (else p_P means nothing)
+  };
+  FixedVector<Mf, msg::kMaxMacroFeatures> mfs;  // one per MF of the panel type
 };
 
 // An MF's position in P counts as measured once averaged over this many frames.

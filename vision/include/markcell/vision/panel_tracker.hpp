@@ -21,6 +21,7 @@
 #include <Eigen/Geometry>
 #include <opencv2/core.hpp>
 
+#include "markcell/common/fixed_vector.hpp"
 #include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
 #include "markcell/msg/pose_estimate.hpp"
@@ -42,12 +43,15 @@ inline constexpr int kTemplateRadius = 7;  // 15x15 template patches
 // the left camera (markcell select-mfs), with their template patches.
 struct PanelTypeModel {
   std::string name;
-  int count = 0;
   int image_width = 0, image_height = 0;
   int search_x = 160, search_y = 40;  // half range of the panel's shift at re-initialisation, px
-  std::array<Eigen::Vector2d, kMaxMacroFeatures> reference_px{};
-  std::array<Patch, kMaxMacroFeatures> templates{};         // level 0
-  std::array<Patch, kMaxMacroFeatures> coarse_templates{};  // at the coarse search level
+  struct Mf {
+    Eigen::Vector2d reference_px = Eigen::Vector2d::Zero();  // on the reference image
+    Patch template_patch;  // level 0
+    Patch coarse_template;  // at the coarse search level
+  };
+  FixedVector<Mf, kMaxMacroFeatures> mfs;  // in the order the engineer picked them
+  int count() const { return mfs.ssize(); }
 };
 inline constexpr int kCoarseLevel = 2;
 

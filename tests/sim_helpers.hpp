@@ -107,7 +107,7 @@ inline std::vector<vision::MemoryFrameSource::Pair> decoded_pairs(const vision::
 // A copy of the example configuration in `dir` running the cell as the service does, with
 // a results file, a record drop folder and the short recording as its cameras.
 struct ServiceCell {
-  std::filesystem::path config, results, drop, script;
+  std::filesystem::path config, results, drop, script, poses;  // poses: the pose log's folder
 };
 inline ServiceCell service_cell(const test::TempDir& dir, const std::string& plc_script) {
   ServiceCell s;
@@ -125,6 +125,9 @@ inline ServiceCell service_cell(const test::TempDir& dir, const std::string& plc
   };
   replace("  # results_file: /var/lib/markcell/results.jsonl", "  results_file: " + s.results.string());
   replace("  # record_folder: /var/lib/markcell/records", "  record_folder: " + s.drop.string());
+  s.poses = dir.path() / "poses";
+  std::filesystem::create_directories(s.poses);
+  replace("  # pose_log_folder: /var/lib/markcell/poses", "  pose_log_folder: " + s.poses.string());
   replace("source: simulated ", "source: recording ");
   replace("    # recording: /path/to/recording", "    recording: " + sim_dir() + "/recording");
   std::ofstream(s.config.string()) << text;

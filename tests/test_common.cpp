@@ -13,6 +13,7 @@
 #include "markcell/common/fixed_string.hpp"
 #include "markcell/common/fixed_vector.hpp"
 #include "markcell/control/marking.hpp"
+#include "markcell/common/spsc_ring.hpp"
 #include "markcell/common/triple_buffer.hpp"
 #include "markcell/control/faults.hpp"
 #include "markcell/control/histogram.hpp"
@@ -193,4 +194,55 @@ TEST_CASE("a panel result's tally counts sprayed and skipped defects independent
   const auto t = r.tally();
   CHECK(t.sprayed == 2);
   CHECK(t.skipped == 2);
+}
+
+TEST_CASE("spsc ring: every value pushed is popped once, in order, or counted as dropped, with no heap use") {
+  struct Item {
+    std::uint64_t n = 0;
+    std::array<std::uint64_t, 7> copy{};  // the same number 7 times: a torn read shows
+  };
+  static SpscRing<Item, 64> ring;  // (static: 4 KiB off the test's stack)
+  constexpr std::uint64_t kCount = 200'000;
+  std::atomic<bool> done{false};
+  std::uint64_t pushed = 0;
+  std::size_t allocations = 0;
+  std::thread producer([&] {
+    test::AllocationGuard guard;  // from here, in both threads
+    for (std::uint64_t i = 1; i <= kCount; ++i) {
+      Item it;
+      it.n = i;
+      it.copy.fill(i);
+      if (ring.push(it)) ++pushed;
+    }
+    allocations = guard.allocations();
+    done.store(true, std::memory_order_release);
+  });
+  std::uint64_t popped = 0, last = 0;
+  bool ordered = true, whole = true;
+  Item got;
+  for (;;) {
+    const bool finished = done.load(std::memory_order_acquire);
+    while (ring.pop(got)) {
+      ++popped;
+      ordered = ordered && got.n > last;
+      last = got.n;
+      for (const auto c : got.copy) whole = whole && c == got.n;
+    }
+    if (finished) break;
+  }
+  producer.join();
+  CHECK(ordered);
+  CHECK(whole);
+  CHECK(popped == pushed);
+  CHECK(pushed + ring.dropped() == kCount);
+  CHECK(allocations == 0);
+  // A full ring refuses the next value and counts it; a pop makes room again.
+  SpscRing<int, 4> small;
+  for (int i = 0; i < 4; ++i) CHECK(small.push(i));
+  CHECK_FALSE(small.push(4));
+  CHECK(small.dropped() == 1);
+  int v = -1;
+  CHECK(small.pop(v));
+  CHECK(v == 0);
+  CHECK(small.push(5));
 }

@@ -432,6 +432,19 @@ TEST_CASE_METHOD(Fixture, "the record folder: resolved against the config's fold
   CHECK(m[0].find("cell.record_folder: folder '" + (dir.path() / "nowhere").string() + "' does not exist") != std::string::npos);
 }
 
+TEST_CASE_METHOD(Fixture, "the pose log: its folder resolved and required to exist, its rotation size in range") {
+  std::filesystem::create_directories(dir.path() / "poses");
+  const auto ok = load_config_text(
+      replace(kValid, "name: test-cell", "name: test-cell\n  pose_log_folder: poses\n  pose_log_rotate_mb: 8"), file(), task_catalog());
+  CHECK(ok.pose_log_folder == (dir.path() / "poses").string());
+  CHECK(ok.pose_log_rotate_mb == 8);
+  CHECK(load_config_text(kValid, file(), task_catalog()).pose_log_rotate_mb == 64);  // the default
+  const auto m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  pose_log_folder: nowhere\n  pose_log_rotate_mb: 0")));
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":3:20: cell.pose_log_folder: folder '" + (dir.path() / "nowhere").string() + "' does not exist");
+  CHECK(m[1] == file() + ":4:23: cell.pose_log_rotate_mb: expected an integer in [1, 1048576], got 0");
+}
+
 TEST_CASE_METHOD(Fixture, "camera_trigger: twice the frame rate, and only with the cameras on the trigger line") {
   const std::string with_trigger =
       replace(kValid, "    sim_world: {lane: control, period_us: 1000, budget_us: 300}\n",

@@ -1,4 +1,4 @@
-// The results file against a disk that fills up, a crash's torn line, and a file removed
+// The results file and the pose log against a disk that fills up, a crash's torn line, and a file removed
 // or replaced while the cell runs. The disk is a real one: a 16 KiB tmpfs mounted for the
 // test (as root; elsewhere a file-size limit, RLIMIT_FSIZE, refuses the writes the same
 // way, halfway through a line). The reference is the file's bytes as a reader sees them.
@@ -12,6 +12,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "markcell/host/pose_log.hpp"
 #include "markcell/host/results_file.hpp"
 #include "test_files.hpp"
 
@@ -160,4 +161,100 @@ TEST_CASE("results lines parse as JSON whatever bytes their text holds") {
   const auto rejected = test::parse_json(ResultsFile::rejected_json("cell-a", "/drop/bad\xff\xfe.yaml", "", "not UTF-8 \x01"));
   CHECK(rejected["record"] == "/drop/bad\xEF\xBF\xBD\xEF\xBF\xBD.yaml");  // each bad byte U+FFFD
   CHECK(rejected["rejected"] == "not UTF-8 \x01");
+}
+
+namespace {
+std::vector<std::string> file_lines(const std::filesystem::path& p) {
+  std::vector<std::string> out;
+  std::ifstream in(p);
+  for (std::string l; std::getline(in, l);) out.push_back(l);
+  return out;
+}
+msg::PoseEstimate estimate(std::uint64_t seq) {
+  msg::PoseEstimate e;
+  e.seq = seq;
+  e.time = static_cast<Nanos>(seq) * 100'000'000;
+  e.status = msg::TrackStatus::kTracking;
+  e.reference_time = 0;
+  // A turn of 0.3 rad about z and a shift: the quaternion is (cos 0.15, 0, 0, sin 0.15).
+  e.X_CamR_P = Eigen::Translation3d(0.1, -0.02, 3.1) * Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ());
+  e.tracked = 2;
+  e.inliers = 1;
+  e.rms = 0.00012346;
+  msg::MacroFeatureObservation seen;
+  seen.valid = seen.inlier = true;
+  seen.left = {100.25, 200.5};
+  seen.right = {80.125, 200.75};
+  msg::MacroFeatureObservation outlier = seen;
+  outlier.inlier = false;
+  e.mfs.push_back(seen);
+  e.mfs.push_back(outlier);
+  e.mfs.push_back(msg::MacroFeatureObservation{});  // unseen
+  return e;
+}
+}  // namespace
+
+TEST_CASE("the pose log: rows as specified, appended across restarts, rotated at its size, a full disk counted") {
+  test::TempDir dir;
+  {
+    PoseLog log(dir.path().string(), PoseLog::Mode::kAppend, 0);
+    CHECK(log.write(estimate(1)));
+    msg::PoseEstimate searching;
+    searching.seq = 2;
+    searching.time = 200'000'000;
+    searching.status = msg::TrackStatus::kSearching;
+    searching.reason = "no \"panel\" here";
+    CHECK(log.write(searching));
+  }
+  auto poses = file_lines(dir.path() / "poses.csv");
+  REQUIRE(poses.size() == 3);
+  CHECK(poses[0] + "\n" == PoseLog::kPosesHeader);
+  CHECK(poses[1] == "1,100000000,tracking,0,0.100000,-0.020000,3.100000," + std::string("0.988771078,0.000000000,0.000000000,0.149438132") +
+                        ",2,1,0.0001235,\"\"");
+  CHECK(std::abs(0.988771078 - std::cos(0.15)) < 1e-9);  // the reference for the digits above
+  CHECK(std::abs(0.149438132 - std::sin(0.15)) < 1e-9);
+  CHECK(poses[2] == "2,200000000,searching,,,,,,,,,0,0,,\"no \"\"panel\"\" here\"");
+  auto tracks = file_lines(dir.path() / "mf_tracks.csv");
+  REQUIRE(tracks.size() == 4);  // the searching estimate has no MFs
+  CHECK(tracks[0] + "\n" == PoseLog::kTracksHeader);
+  CHECK(tracks[1] == "1,100000000,0,inlier,100.250,200.500,80.125,200.750");
+  CHECK(tracks[2] == "1,100000000,1,outlier,100.250,200.500,80.125,200.750");
+  CHECK(tracks[3] == "1,100000000,2,unseen,,,,");
+
+  // Reopened in append mode (the service restarted): no second header. Rotated once past
+  // 1 KiB: FILE.1 holds what came before, FILE starts with its header again.
+  {
+    PoseLog log(dir.path().string(), PoseLog::Mode::kAppend, 1024);
+    for (std::uint64_t s = 3; s < 20; ++s) log.write(estimate(s));
+    CHECK(log.rotations() >= 2);  // both files passed 1 KiB
+    CHECK(log.failed() == 0);
+  }
+  const auto old = file_lines(dir.path() / "poses.csv.1");
+  poses = file_lines(dir.path() / "poses.csv");
+  CHECK(old[0] + "\n" == PoseLog::kPosesHeader);
+  CHECK(std::count(old.begin(), old.end(), old[0]) == 1);
+  CHECK(poses[0] + "\n" == PoseLog::kPosesHeader);
+  // The last rotation's .1 and the file after it: consecutive frames, none lost, to the last.
+  REQUIRE(old.size() > 1);
+  REQUIRE(poses.size() > 1);
+  CHECK(std::stoi(poses[1]) == std::stoi(old.back()) + 1);
+  CHECK(std::stoi(poses.back()) == 19);
+  CHECK(std::filesystem::file_size(dir.path() / "poses.csv.1") >= 1024);
+
+  // A link where the file should be is refused, naming it.
+  test::TempDir linked;
+  std::filesystem::create_symlink("/etc/passwd", linked.path() / "poses.csv");
+  CHECK_THROWS_WITH(PoseLog(linked.path().string(), PoseLog::Mode::kAppend, 0),
+                    Catch::Contains((linked.path() / "poses.csv").string() + ": cannot open the pose log"));
+
+  // A full disk: the rows that do not fit are counted, the log goes on.
+  SmallDisk disk(16 * 1024);
+  PoseLog full(disk.dir.string(), PoseLog::Mode::kTruncate, 0);
+  std::uint64_t refused = 0;
+  for (std::uint64_t s = 0; s < 400; ++s) {
+    if (!full.write(estimate(s))) ++refused;
+  }
+  CHECK(refused > 0);
+  CHECK(full.failed() == refused);
+  CHECK(full.rows() + full.failed() == 400);
 }

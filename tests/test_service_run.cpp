@@ -21,6 +21,7 @@
 #include "markcell/host/config.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/rig/scoring.hpp"
@@ -413,6 +414,15 @@ TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder re
     CHECK(result["defects"][static_cast<std::size_t>(id - 1)]["id"] == id);
     CHECK(result["defects"][static_cast<std::size_t>(id - 1)]["sprayed"] == true);
   }
+  // The pose log: one line per frame pair the vision task took (the recording's 3 s at 10
+  // frames a second), each with its MFs.
+  const auto poses = lines_of(read_file((s.poses / "poses.csv").string()));
+  const auto tracks = lines_of(read_file((s.poses / "mf_tracks.csv").string()));
+  REQUIRE(poses.size() > 20);
+  CHECK(poses[0] + "\n" == host::PoseLog::kPosesHeader);
+  CHECK(tracks[0] + "\n" == host::PoseLog::kTracksHeader);
+  CHECK(tracks.size() - 1 == 10 * (poses.size() - 1));  // the door's 10 MFs per frame pair
+  CHECK(std::count_if(poses.begin(), poses.end(), [](const std::string& l) { return l.find(",tracking,") != std::string::npos; }) > 20);
 
   // The next panel's e-stop mid-sequence: the fault logged as it happens, the panel's
   // result a fault with nothing sprayed after it, the valve closed.
@@ -430,6 +440,11 @@ TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder re
         std::string::npos);
   const auto after_stop = lines_of(read_file(s.results.string()));
   REQUIRE(after_stop.size() == 4);
+  // The service's pose log is appended to across restarts, its header written once.
+  const auto poses_after = lines_of(read_file((s.poses / "poses.csv").string()));
+  CHECK(poses_after.size() > poses.size());
+  CHECK(std::equal(poses.begin(), poses.end(), poses_after.begin()));
+  CHECK(std::count(poses_after.begin(), poses_after.end(), poses[0]) == 1);
   const auto stopped = parse_json(after_stop[3]);
   CHECK(stopped["panel_id"] == "paper-door-2");
   CHECK(stopped["fault"] == true);

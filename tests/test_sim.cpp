@@ -12,7 +12,9 @@
 #include <sys/stat.h>
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <filesystem>
+#include <map>
 #include <fstream>
 #include <sstream>
 #include <vector>
@@ -21,12 +23,14 @@
 #include "markcell/host/config.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/rig/scoring.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/vision/frame_source.hpp"
+#include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/recording.hpp"
 #include "markcell/rig/render.hpp"
 #include "sim_helpers.hpp"
@@ -129,11 +133,13 @@ TEST_CASE("line-fast: the arm waits at home for refits to place every ding, then
   CHECK(json_number(waiting, "seconds_per_defect", "seconds_per_defect") > 1.5);
 }
 
-TEST_CASE("replaying the same recording gives the same command log and report, byte for byte") {
+TEST_CASE("replaying the same recording gives the same command log, pose log and report, byte for byte") {
   test::TempDir dir;
   const std::string out = (dir.path() / "again").string();
   const std::string json = replay_report(sim_dir() + "/recording", "", out);
   CHECK(read_file(out + "/commands.log") == read_file(sim_dir() + "/commands.log"));
+  CHECK(read_file(out + "/poses.csv") == read_file(sim_dir() + "/poses.csv"));
+  CHECK(read_file(out + "/mf_tracks.csv") == read_file(sim_dir() + "/mf_tracks.csv"));
   CHECK(json == read_file(sim_dir() + "/report.json"));
 }
 
@@ -286,6 +292,7 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   host::Cell cell(cfg, host::ClockKind::kSimulated);
   cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(std::move(pairs), cfg.cameras.latency));
   const auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
+  cell.enable_pose_queue();  // every estimate handed to the pose log's queue too
   cell.start();
   REQUIRE(cell.marking()->offer_job(job));
   cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), true);
@@ -302,6 +309,11 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   CHECK(result.tally().sprayed == 3);
   CHECK(cell.sim_nozzle()->kept() == 3);
   CHECK(allocations == 0);
+  msg::PoseEstimate e;
+  std::size_t queued = 0;
+  while (cell.pose_queue()->pop(e)) ++queued;
+  CHECK(queued >= 29);  // the 3 s at 10 frames a second (the last may still be in flight)
+  CHECK(cell.pose_queue()->dropped() == 0);
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
 }
 
@@ -469,4 +481,125 @@ TEST_CASE("a replay shows the frame index lines it refused, in its output and in
   const auto report = parse_json(read_file(out + "/report.json"));
   REQUIRE(report["index_problems"].size() == 2);
   for (const auto& p : report["index_problems"]) CHECK(p.get<std::string>().rfind("frames.csv:", 0) == 0);
+}
+
+namespace {
+std::vector<std::string> csv_fields(const std::string& line) {
+  std::vector<std::string> out;
+  std::string field;
+  std::istringstream in(line);
+  while (std::getline(in, field, ',')) out.push_back(field);
+  if (!line.empty() && line.back() == ',') out.emplace_back();
+  return out;
+}
+Eigen::Isometry3d pose_of(const std::vector<std::string>& f, std::size_t at) {  // x y z qw qx qy qz from column `at`
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.translation() = Eigen::Vector3d(std::stod(f[at]), std::stod(f[at + 1]), std::stod(f[at + 2]));
+  X.linear() = Eigen::Quaterniond(std::stod(f[at + 3]), std::stod(f[at + 4]), std::stod(f[at + 5]), std::stod(f[at + 6]))
+                   .normalized()
+                   .toRotationMatrix();
+  return X;
+}
+}  // namespace
+
+TEST_CASE("the pose log read back against the recording's truth: the panel's motion within the report's pose error") {
+  // Independent of the rig's scorer: the recording's truth.csv and defects.csv, joined on
+  // seq, as a user with their own truth would.
+  const std::string json = read_file(sim_dir() + "/report.json");
+  const auto poses = lines_of(read_file(sim_dir() + "/poses.csv"));
+  const auto truth_lines = lines_of(read_file(sim_dir() + "/recording/truth.csv"));
+  const auto defect_lines = lines_of(read_file(sim_dir() + "/recording/defects.csv"));
+  REQUIRE(poses.size() > 20);
+  REQUIRE(poses[0] + "\n" == host::PoseLog::kPosesHeader);
+  std::map<std::string, Eigen::Isometry3d> truth;  // by seq: X_CamR_Panel
+  for (std::size_t i = 1; i < truth_lines.size(); ++i) {
+    const auto f = csv_fields(truth_lines[i]);
+    truth[f[0]] = pose_of(f, 2);
+  }
+  std::vector<Eigen::Vector3d> defects_Panel;
+  for (std::size_t i = 1; i < defect_lines.size(); ++i) {
+    const auto f = csv_fields(defect_lines[i]);
+    defects_Panel.emplace_back(std::stod(f[1]), std::stod(f[2]), std::stod(f[3]));
+  }
+  REQUIRE(defects_Panel.size() == 3);
+  std::map<std::string, std::string> seq_at_time;  // time_ns -> seq, to find each P's set-up frame
+  for (std::size_t i = 1; i < poses.size(); ++i) {
+    const auto f = csv_fields(poses[i]);
+    seq_at_time[f[1]] = f[0];
+  }
+  double max_error = 0, sum_sq = 0;
+  int tracked = 0;
+  for (std::size_t i = 1; i < poses.size(); ++i) {
+    const auto f = csv_fields(poses[i]);
+    REQUIRE(f.size() == 15);
+    if (f[2] != "tracking") continue;
+    REQUIRE(seq_at_time.count(f[3]) == 1);
+    const Eigen::Isometry3d X_CamR_Panel = truth.at(f[0]), X_CamR_Panel_ref = truth.at(seq_at_time.at(f[3]));
+    const Eigen::Isometry3d X_CamR_P = pose_of(f, 4);
+    for (const auto& c : defects_Panel) {
+      // P is the right camera's frame at the set-up frame: the defect there is X_CamR_Panel_ref * c.
+      const double e = (X_CamR_P * (X_CamR_Panel_ref * c) - X_CamR_Panel * c).norm();
+      max_error = std::max(max_error, e);
+      sum_sq += e * e;
+    }
+    ++tracked;
+  }
+  REQUIRE(tracked > 20);
+  const double rms = std::sqrt(sum_sq / (3.0 * tracked));
+  INFO("pose log: " << tracked << " tracked frames, motion error at the dings max " << max_error * 1000 << " mm, rms "
+                    << rms * 1000 << " mm");
+  INFO(json);
+  // The report's figure is the same motion error, taken only at the frames the marking
+  // sequence used and at the ding being marked ("setup_frame_max": P taken as the set-up
+  // frame, as here).
+  const double report_max = json_number(json, "pose_error_mm", "setup_frame_max") / 1000;
+  CHECK(rms <= report_max);
+  CHECK(max_error < 3e-3);  // the vision issue's target for the panel pose
+}
+
+TEST_CASE("a recording made with another calibration than the configuration's is refused with both files, unless --calibration says which") {
+  test::TempDir dir;
+  const auto rec = dir.path() / "recording";
+  std::filesystem::copy(sim_dir() + "/recording", rec, std::filesystem::copy_options::recursive);
+  // Another tool's recording: no `generator: markcell sim`, and its cameras 2 mm further apart.
+  std::string manifest = read_file((rec / "recording.yaml").string());
+  const auto at = manifest.find("generator: markcell sim\n");
+  REQUIRE(at != std::string::npos);
+  manifest.erase(at, std::string("generator: markcell sim\n").size());
+  std::ofstream((rec / "recording.yaml").string()) << manifest;
+  const auto manifest_calibration = vision::Recording::open(rec.string()).manifest().calibration;
+  const std::string recorded = (rec / manifest_calibration).string();
+  vision::StereoCalibration cal = vision::load_stereo_calibration(recorded);
+  const double tx = cal.X_CamR_CamL.translation().x();
+  cal.X_CamR_CamL.translation().x() = tx + (tx < 0 ? -0.002 : 0.002);
+  vision::save_stereo_calibration(recorded, cal);
+
+  const std::string out = (dir.path() / "out").string();
+  const auto refused = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+                                   " --one-predictor -q --out " + out);
+  INFO(refused.output);
+  CHECK(refused.exit_code != 0);
+  CHECK(refused.output.find("the recording's calibration " + recorded + " and the configuration's calibration.stereo") !=
+        std::string::npos);
+  CHECK(refused.output.find("marking_stereo.yaml differ (largest difference: T[0] (X_CamR_CamL, m)") != std::string::npos);
+  CHECK(refused.output.find("--calibration FILE") != std::string::npos);
+  CHECK_FALSE(std::filesystem::exists(out + "/report.json"));
+
+  // Told to use the recording's: replayed with it, and (not markcell sim's) without the
+  // simulated arm painted in.
+  const auto told = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+                                " --one-predictor -q --calibration " + recorded + " --out " + out);
+  INFO(told.output);
+  REQUIRE(told.exit_code == 0);
+  const std::string json = read_file(out + "/report.json");
+  CHECK(parse_json(json)["calibration"] == recorded);
+  CHECK(json_number(json, "vision", "arm_drawn") == 0);
+  CHECK(json_number(json, "vision", "frames") > 20);
+  // --draw-arm paints it into any recording.
+  const auto drawn = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+                                 " --one-predictor -q --draw-arm --calibration " + recorded + " --out " + out);
+  INFO(drawn.output);
+  REQUIRE(drawn.exit_code == 0);
+  const std::string with_arm = read_file(out + "/report.json");
+  CHECK(json_number(with_arm, "vision", "arm_drawn") == json_number(with_arm, "vision", "frames"));
 }

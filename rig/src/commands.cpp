@@ -74,8 +74,8 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
     std::string rig_config = "config/cell.example.yaml", rig_out, sim_scenario, replay_recording, scanner_file;
     std::uint64_t sim_seed = 1;
     double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
-    bool one_predictor = false, quiet = false, no_arm = false;
-    std::string rig_plc_script, rig_gpio_sim, rig_arm_serial_peer;
+    bool one_predictor = false, quiet = false, no_arm = false, draw_arm = false;
+    std::string rig_plc_script, rig_gpio_sim, rig_arm_serial_peer, replay_calibration;
   };
   const auto o = std::make_shared<Options>();
   auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
@@ -97,6 +97,9 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
                      "(a second port on a null-modem cable, or socat's other pty)")
       ->needs("--gpio-sim")
       ->check(CLI::ExistingPath);
+  replay->add_option("--calibration", o->replay_calibration,
+                     "Stereo calibration to replay with, when the recording's and the configuration's differ")
+      ->check(CLI::ExistingFile);
   for (auto* c : {sim, replay}) {
     c->add_option("--config,-c", o->rig_config, "Cell configuration (YAML)");
     c->add_option("--out,-o", o->rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
@@ -107,6 +110,10 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
     c->add_flag("--no-arm", o->no_arm, "Do not draw the simulated arm into synthetic frames (it occludes macro-features in closed loop)");
     c->add_flag("--quiet,-q", o->quiet, "No progress lines");
   }
+  replay->add_flag("--draw-arm", o->draw_arm,
+                   "Draw the simulated arm into the frames of a recording markcell sim did not make (a synthetic one of "
+                   "another tool)")
+      ->excludes("--no-arm");
   const auto run = [o, stop_signals, calibrate_board](bool is_replay) {
     const auto config = load_or_report(o->rig_config);
     if (!config) return kExitConfig;
@@ -116,7 +123,10 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
     options.stop = &stop.signal();
     options.progress = !o->quiet;
     options.both_predictors = !o->one_predictor;
-    options.draw_arm = !o->no_arm;
+    options.draw_arm = o->no_arm    ? ReplayOptions::ArmDrawing::kNever
+                       : o->draw_arm ? ReplayOptions::ArmDrawing::kAlways
+                                     : ReplayOptions::ArmDrawing::kRigRecordings;
+    options.calibration = o->replay_calibration;
     options.gpio_sim = o->rig_gpio_sim;
     options.arm_serial_peer = o->rig_arm_serial_peer;
     if (!o->rig_plc_script.empty()) {

@@ -19,6 +19,7 @@
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
 #include "markcell/rig/render.hpp"
+#include "markcell/rig/scenario.hpp"
 
 namespace markcell::rig {
 
@@ -72,8 +73,10 @@ void check_real_devices(const CellConfig& c, const ReplayOptions& options) {
     throw std::runtime_error(c.file + ": --arm-serial-peer is given but devices.arm.transport is not serial");
 }
 
+// `pose_log_folder`: where this run's poses.csv and mf_tracks.csv go (empty: none).
 PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
-                      control::PredictorKind kind, const ReplayOptions& options, const vision::Recording& rec) {
+                      control::PredictorKind kind, const ReplayOptions& options, const vision::Recording& rec,
+                      const std::string& pose_log_folder) {
   const std::string predictor(control::to_string(kind));
   const bool real = !options.gpio_sim.empty();
   CellConfig cfg = base;
@@ -109,13 +112,16 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   std::unique_ptr<vision::FrameSource> configured = cell.release_frame_source();
   auto& source = static_cast<vision::RecordingFrameSource&>(*configured);
   ArmOverlaySource* overlay = nullptr;
-  if (!real && options.draw_arm && !rec.truth().empty()) {
+  const bool draw_arm = options.draw_arm == ReplayOptions::ArmDrawing::kAlways ||
+                        (options.draw_arm == ReplayOptions::ArmDrawing::kRigRecordings && rec.manifest().generator == kRigGenerator);
+  if (!real && draw_arm) {
     auto wrapped = std::make_unique<ArmOverlaySource>(std::move(configured), cell.stereo_rig()->calibration(),
                                                       cell.X_Base_CamR().inverse(), *cell.sim_tool_poses());
     overlay = wrapped.get();
     configured = std::move(wrapped);
   }
   cell.use_frame_source(std::move(configured));
+  if (!pose_log_folder.empty()) cell.enable_pose_queue();  // (the service loop below writes it)
   const auto drive = [&](LineRole line, bool level) {
     if (peer) peer->drive(line, level);
     else cell.drive_sim_input(line, level);
@@ -170,6 +176,8 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   service.journal = false;
   service.on_fault = [&](const control::Fault& f) { cell_faults.push_back(fault_line(f)); };
   service.on_step = [&](Nanos) { progress(now()); };
+  service.pose_log_folder = pose_log_folder;
+  service.pose_log_mode = PoseLog::Mode::kTruncate;  // the run's own, as its commands.log
   ServiceLoop loop(cfg, cell, std::move(service));
   // A stop asked for is seen within 100 ms of simulated time (a few hundred ms of
   // computing at most) or 5 ms of real time.
@@ -314,10 +322,67 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
 
 }  // namespace
 
-ReplayReport replay_recording(const CellConfig& config, const std::string& recording, const ReplayOptions& options) {
-  if (!has_task(config, "vision") || !has_task(config, "marking"))
-    throw std::runtime_error(config.file + ": executive.tasks needs the vision and marking tasks for a rig run");
+namespace {
+// Where two stereo calibrations differ most: each K, D, R (as the angle between them) and
+// T compared entry by entry, the sizes exactly. Empty when they agree to 1e-9 relative.
+std::string largest_difference(const vision::StereoCalibration& a, const vision::StereoCalibration& b) {
+  std::string worst;
+  double worst_excess = 0;
+  const auto compare = [&](const std::string& name, double va, double vb) {
+    const double tolerance = 1e-9 * std::max({1.0, std::abs(va), std::abs(vb)});
+    const double excess = std::abs(va - vb) / tolerance;
+    if (excess > 1 && excess > worst_excess) {
+      worst_excess = excess;
+      char text[160];
+      std::snprintf(text, sizeof text, "%s %.10g vs %.10g", name.c_str(), va, vb);
+      worst = text;
+    }
+  };
+  for (int cam = 0; cam < 2; ++cam) {
+    const vision::CameraModel& ca = cam == 0 ? a.left : a.right;
+    const vision::CameraModel& cb = cam == 0 ? b.left : b.right;
+    const std::string k = cam == 0 ? "K1" : "K2", d = cam == 0 ? "D1" : "D2";
+    if (ca.width != cb.width || ca.height != cb.height)
+      return "image size " + std::to_string(ca.width) + "x" + std::to_string(ca.height) + " vs " + std::to_string(cb.width) +
+             "x" + std::to_string(cb.height);
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) compare(k + "[" + std::to_string(i) + "][" + std::to_string(j) + "]", ca.K(i, j), cb.K(i, j));
+    const auto coeff = [](const vision::CameraModel& c, int i) {
+      return !c.distortion.empty() && i < static_cast<int>(c.distortion.total()) ? c.distortion.at<double>(i) : 0.0;
+    };
+    for (int i = 0; i < 14; ++i) compare(d + "[" + std::to_string(i) + "]", coeff(ca, i), coeff(cb, i));
+  }
+  const double angle = Eigen::AngleAxisd(a.X_CamR_CamL.linear().transpose() * b.X_CamR_CamL.linear()).angle();
+  if (angle > 1e-9) {
+    char text[96];
+    std::snprintf(text, sizeof text, "R: %.3g deg apart", angle * 180 / M_PI);
+    if (worst_excess < angle / 1e-9) worst = text;
+  }
+  for (int i = 0; i < 3; ++i)
+    compare("T[" + std::to_string(i) + "] (X_CamR_CamL, m)", a.X_CamR_CamL.translation()[i], b.X_CamR_CamL.translation()[i]);
+  return worst;
+}
+}  // namespace
+
+ReplayReport replay_recording(const CellConfig& base_config, const std::string& recording, const ReplayOptions& options) {
+  if (!has_task(base_config, "vision") || !has_task(base_config, "marking"))
+    throw std::runtime_error(base_config.file + ": executive.tasks needs the vision and marking tasks for a rig run");
   const vision::Recording rec = vision::Recording::open(recording);
+  // The recording's own calibration, unless the user says which: a configuration made for
+  // another pair of cameras would triangulate every MF wrongly without a word.
+  CellConfig config = base_config;
+  const std::string recorded = (std::filesystem::path(recording) / rec.manifest().calibration).string();
+  if (!options.calibration.empty()) {
+    config.calibration.stereo = options.calibration;
+  } else {
+    const std::string diff = largest_difference(vision::load_stereo_calibration(recorded),
+                                                vision::load_stereo_calibration(config.calibration.stereo));
+    if (!diff.empty())
+      throw std::runtime_error("the recording's calibration " + recorded + " and the configuration's calibration.stereo " +
+                               config.calibration.stereo + " differ (largest difference: " + diff +
+                               "); say which to replay with: --calibration FILE");
+    config.calibration.stereo = recorded;
+  }
   const std::string inspection = (std::filesystem::path(recording) / "inspection.yaml").string();
   if (!std::filesystem::exists(inspection))
     throw std::runtime_error(inspection + ": missing: a rig run needs the inspection station's record of the panel");
@@ -329,6 +394,7 @@ ReplayReport replay_recording(const CellConfig& config, const std::string& recor
   report.scenario = rec.manifest().scenario.empty() ? std::filesystem::path(recording).filename().string() : rec.manifest().scenario;
   report.recording = recording;
   report.panel_type = rec.manifest().panel_type;
+  report.calibration = config.calibration.stereo;
   report.index_problems = rec.index_problems();
   if (!options.gpio_sim.empty()) {
     check_real_devices(config, options);
@@ -342,8 +408,10 @@ ReplayReport replay_recording(const CellConfig& config, const std::string& recor
   std::vector<PredictorKind> kinds{config.marking.predictor.kind};
   if (options.both_predictors)
     kinds.push_back(config.marking.predictor.kind == PredictorKind::kKalman ? PredictorKind::kTwoFrame : PredictorKind::kKalman);
+  // The main run's pose log beside its commands.log (vision/RECORDING.md, "The pose log").
+  if (!options.out_dir.empty()) std::filesystem::create_directories(options.out_dir);
   for (const auto& k : kinds) {
-    report.runs.push_back(run_once(config, recording, job, k, options, rec));
+    report.runs.push_back(run_once(config, recording, job, k, options, rec, report.runs.empty() ? options.out_dir : std::string()));
     const PredictorRun& r = report.runs.back();
     if (r.stopped_by != 0) {  // the other predictor's run is not begun
       char at[64];

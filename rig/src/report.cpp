@@ -247,7 +247,7 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
   try {
     // Figs. 5 and 6 on the first frame where the panel's MFs are found, as the cell found them.
     const vision::Recording rec = vision::Recording::open(report.recording);
-    const vision::StereoRig rig(vision::load_stereo_calibration(config.calibration.stereo));
+    const vision::StereoRig rig(vision::load_stereo_calibration(report.calibration.empty() ? config.calibration.stereo : report.calibration));
     std::string type_file;
     for (const auto& p : config.panel_types)
       if (p.name == report.panel_type) type_file = p.file;
@@ -343,6 +343,7 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
   Json doc{{"scenario", report.scenario},
            {"recording", report.recording},
            {"panel_type", report.panel_type},
+           {"calibration", report.calibration},
            {"devices", report.devices},
            // A run stopped by a signal is partial: said first, so no reader takes it for whole.
            {"stopped", report.stopped.empty() ? Json(nullptr) : Json(report.stopped)},

@@ -162,6 +162,7 @@ std::size_t generate_recording(const Scenario& s, const std::string& folder, con
   m.calibration = "stereo.yaml";
   m.seed = s.seed;
   m.scenario = s.name;
+  m.generator = std::string(kRigGenerator);
   std::size_t written = 0;
   {
     vision::RecordingWriter writer(folder, m);

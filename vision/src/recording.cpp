@@ -203,6 +203,7 @@ void RecordingWriter::close() {
   if (!defects_.empty()) y << YAML::Key << "defects" << YAML::Value << "defects.csv";
   if (manifest_.seed) y << YAML::Key << "seed" << YAML::Value << *manifest_.seed;
   if (!manifest_.scenario.empty()) y << YAML::Key << "scenario" << YAML::Value << manifest_.scenario;
+  if (!manifest_.generator.empty()) y << YAML::Key << "generator" << YAML::Value << manifest_.generator;
   y << YAML::EndMap;
   std::ofstream(dir / "recording.yaml") << y.c_str() << '\n';
 }
@@ -243,6 +244,7 @@ Recording Recording::open(const std::string& folder) {
     if (m["defects"].IsDefined()) r.manifest_.has_defects = true;
     if (m["seed"].IsDefined()) r.manifest_.seed = m["seed"].as<std::uint64_t>();
     if (m["scenario"].IsDefined()) r.manifest_.scenario = m["scenario"].as<std::string>();
+    if (m["generator"].IsDefined()) r.manifest_.generator = m["generator"].as<std::string>();
   } catch (const YAML::BadConversion& e) {
     throw RecordingError(manifest_path + ": line " + std::to_string(e.mark.line + 1) + ": wrong type of value");
   }

@@ -167,6 +167,7 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
   }
   const msg::PoseEstimate& e = v->trackers[static_cast<std::size_t>(v->active)]->process(f.seq, f.time, *f.left, *f.right);
   if (e.has_pose()) ++v->stats.poses;
+  if (v->poses != nullptr) v->poses->push(e);  // a full queue counts the estimate, never waits
   v->source->tracked(e);
   control::MarkingEstimate& out = v->estimates->write_slot();
   out.pose = e;
@@ -348,6 +349,13 @@ void Cell::enable_command_log(std::size_t capacity) {
         static_cast<SimWorld*>(user)->log.frame(time, frame);
       },
       sim_world_.get());
+}
+
+void Cell::enable_pose_queue() {
+  if (pose_queue_) return;
+  if (!vision_ || started_) throw std::logic_error("the pose queue needs the vision task and must be enabled before start()");
+  if (!pose_queue_) pose_queue_ = std::make_unique<PoseQueue>();
+  vision_->poses = pose_queue_.get();
 }
 
 std::unique_ptr<vision::FrameSource> Cell::release_frame_source() {

@@ -50,6 +50,8 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     options.clock = clock;
     options.duration = static_cast<Nanos>(std::llround(seconds * 1e9));
     options.plc_events = std::move(plc_events);
+    options.pose_log_folder = config.pose_log_folder;
+    options.pose_log_rotate_bytes = config.pose_log_rotate_mb * 1024 * 1024;
     service = std::make_unique<ServiceLoop>(config, cell, std::move(options));
     service->start();
   } catch (const std::exception& e) {

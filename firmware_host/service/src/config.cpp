@@ -748,7 +748,7 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
     return r.child(root, "", std::string(key), s != kConfigSections.end() && s->required);
   };
 
-  if (const auto cell = section("cell"); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder"})) {
+  if (const auto cell = section("cell"); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder", "pose_log_folder", "pose_log_rotate_mb"})) {
     r.text(*cell, "cell", "name", cfg.name);
     // A path resolved against the config file's folder; `folder` must exist.
     const auto path_in = [&](const char* key, std::string& out, const auto& folder_of) {
@@ -766,6 +766,8 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
     };
     path_in("results_file", cfg.results_file, [](const std::filesystem::path& p) { return p.parent_path(); });
     path_in("record_folder", cfg.record_folder, [](const std::filesystem::path& p) { return p; });
+    path_in("pose_log_folder", cfg.pose_log_folder, [](const std::filesystem::path& p) { return p; });
+    r.integer(*cell, "cell", "pose_log_rotate_mb", cfg.pose_log_rotate_mb, 1, 1 << 20, false);
   }
   std::vector<YAML::Mark> task_marks;
   if (const auto e = section("executive")) read_executive(r, *e, known_tasks, cfg, task_marks);

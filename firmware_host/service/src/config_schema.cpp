@@ -123,6 +123,11 @@ std::string text_item(std::string_view doc) {
   return "{\"type\": \"string\", \"minLength\": 1, \"description\": " + json_quote(doc) + "}";
 }
 
+std::string integer_item(std::string_view doc, long long lo, long long hi) {
+  return "{\"type\": \"integer\", \"minimum\": " + std::to_string(lo) + ", \"maximum\": " + std::to_string(hi) +
+         ", \"description\": " + json_quote(doc) + "}";
+}
+
 std::string pose_six(std::string_view doc) {
   return "{\"type\": \"array\", \"description\": " + json_quote(doc) +
          ", \"minItems\": 6, \"maxItems\": 6, \"items\": {\"type\": \"number\", \"minimum\": -360, \"maximum\": 360}}";
@@ -186,6 +191,8 @@ std::string config_schema_json(TaskTable known_tasks) {
       cell.add_object("name", text_item("appears in logs and results"), true);
       cell.add_object("results_file", text_item("each panel's result, appended and synced"), false);
       cell.add_object("record_folder", text_item("inspection records arrive here"), false);
+      cell.add_object("pose_log_folder", text_item("poses.csv and mf_tracks.csv written here"), false);
+      cell.add_object("pose_log_rotate_mb", integer_item("each pose log file rotated to FILE.1 past this size, MiB", 1, 1 << 20), false);
       body = cell.object(s.doc);
     } else if (s.key == "executive") {
       body = executive_section(s.doc, known_tasks);

@@ -52,9 +52,33 @@ ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions op
   if (!config.record_folder.empty() && cell.marking() != nullptr)
     records_ = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
   if (results_) close_interrupted(*results_, config.name, records_.get(), journal_);
+  if (!options_.pose_log_folder.empty() && cell.vision_stats() != nullptr) {  // a cell with a vision task
+    pose_log_ = std::make_unique<PoseLog>(options_.pose_log_folder, options_.pose_log_mode, options_.pose_log_rotate_bytes);
+    cell.enable_pose_queue();  // (before start(), or already by whoever started the cell)
+  }
 }
 
-ServiceLoop::~ServiceLoop() = default;
+ServiceLoop::~ServiceLoop() {
+  try {
+    write_poses();
+  } catch (...) {  // (a log line that could not be made): the poses are on disk
+  }
+}
+
+void ServiceLoop::write_poses() {
+  PoseQueue* queue = cell_.pose_queue();
+  if (!pose_log_ || queue == nullptr) return;
+  // Bounded: at most what the queue can hold, the rest is the next step's.
+  msg::PoseEstimate e;
+  for (std::size_t i = 0; i < PoseQueue::capacity() && queue->pop(e); ++i) pose_log_->write(e);
+  if (queue->dropped() != poses_dropped_seen_ || pose_log_->failed() != poses_failed_seen_) {
+    log(4, format("markcell: pose log: %llu estimates not logged (queue full), %llu lost to write errors (%s)",
+                  static_cast<unsigned long long>(queue->dropped()), static_cast<unsigned long long>(pose_log_->failed()),
+                  escape_log(pose_log_->poses_path()).c_str()));
+    poses_dropped_seen_ = queue->dropped();
+    poses_failed_seen_ = pose_log_->failed();
+  }
+}
 
 // Each finished panel: its result appended and synced, then acknowledged so that the
 // marking sequence tells the PLC; one journald line per panel.
@@ -192,6 +216,12 @@ bool ServiceLoop::watch_safety() {
 }
 
 LoopEnd ServiceLoop::supervise(const StopWait& wait) {
+  const LoopEnd end = supervise_steps(wait);
+  write_poses();
+  return end;
+}
+
+LoopEnd ServiceLoop::supervise_steps(const StopWait& wait) {
   const bool simulated = cell_.sim_clock() != nullptr;
   const Nanos step = options_.step > 0 ? options_.step : simulated ? millis(100) : millis(50);
   constexpr Nanos kForever = std::numeric_limits<Nanos>::max() / 2;
@@ -220,6 +250,7 @@ LoopEnd ServiceLoop::supervise(const StopWait& wait) {
     collect();
     log_faults();
     take_records(now());
+    write_poses();
     if (options_.on_step) options_.on_step(t);
     if (watch_safety()) return LoopEnd::kCellFault;
     if (options_.panels > 0 && cell_.marking() != nullptr && cell_.marking()->panels_completed() >= options_.panels)
@@ -268,6 +299,7 @@ int ServiceLoop::run(const sigset_t& signals) {
   }
   cell_.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason);
   collect();
+  write_poses();
   if (results_) {
     try {
       close_interrupted(*results_, config_.name, nullptr, journal_);

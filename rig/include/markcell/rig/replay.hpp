@@ -35,9 +35,14 @@ struct ReplayOptions {
   bool both_predictors = true;      // also replay with the predictor not configured
   Nanos tail = seconds(15);         // simulated time after the last frame for the panel to finish
   double radius = 0.010;            // a spray within this of a defect's centre marks it, m
-  // Synthetic recordings (with ground truth): the simulated arm drawn into the frames in
-  // closed loop (rig/arm_view.hpp). Real recordings show the real arm already.
-  bool draw_arm = true;
+  // The simulated arm drawn into the frames in closed loop (rig/arm_view.hpp): by default
+  // only into the rig's own recordings (recording.yaml's `generator: markcell sim`); a
+  // real recording shows the real arm already, and another tool's is its own scene.
+  enum class ArmDrawing { kRigRecordings, kAlways, kNever };
+  ArmDrawing draw_arm = ArmDrawing::kRigRecordings;
+  // The stereo calibration to replay with (--calibration). Empty: the recording's, which
+  // must then agree with the configuration's calibration.stereo.
+  std::string calibration;
   // The PLC's inputs scripted on top of the panel-present line the replay drives itself
   // (markcell/sim/plc_script.hpp): an e-stop, a cycle disable, a panel leaving early.
   std::vector<sim::PlcEvent> plc_events;
@@ -102,6 +107,7 @@ struct ReplayReport {
   std::string scenario;
   std::string recording;
   std::string panel_type;
+  std::string calibration;                      // the stereo calibration replayed with (and plotted with)
   std::string devices = "simulated";            // what the cell ran on, and its clock with it
   std::vector<std::string> index_problems;      // frames.csv lines refused (not replayed), with why
   std::vector<PredictorRun> runs;               // runs[0]: the configured predictor

@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -28,6 +29,9 @@
 #include "markcell/rig/render.hpp"
 
 namespace markcell::rig {
+
+// recording.yaml's `generator` of the recordings `markcell sim` makes.
+inline constexpr std::string_view kRigGenerator = "markcell sim";
 
 struct PersonWalk {
   Nanos enter = 0, leave = 0;      // crossing the view between these times

@@ -33,6 +33,9 @@ struct RecordingManifest {
   bool has_defects = false;
   std::optional<std::uint64_t> seed;
   std::string scenario;
+  // The program that made it, when it says (`markcell sim` for the rig's own): the replay
+  // draws its simulated arm only into the rig's own recordings.
+  std::string generator;
 };
 
 struct IndexEntry {

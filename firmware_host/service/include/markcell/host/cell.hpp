@@ -20,6 +20,7 @@
 #include "markcell/drivers/gpio.hpp"
 #include "markcell/drivers/serial_arm_link.hpp"
 #include "markcell/drivers/watchdog_device.hpp"
+#include "markcell/common/spsc_ring.hpp"
 #include "markcell/sim/command_log.hpp"
 #include "markcell/sim/nozzle_witness.hpp"
 #include "markcell/host/config.hpp"
@@ -56,6 +57,11 @@ struct VisionStats {
   std::uint64_t poses = 0;
   std::uint64_t stalls = 0;
 };
+
+// The vision task's estimates on their way to the pose log (host/pose_log.hpp): 256 pairs,
+// eight seconds at 30 fps, while the service loop empties it every 50 ms (100 ms of
+// simulated time, one second in the rig's replay).
+using PoseQueue = SpscRing<msg::PoseEstimate, 256>;
 
 class Cell {
  public:
@@ -102,6 +108,10 @@ class Cell {
   // Storage for `capacity` entries is taken here, before start(); a full log counts
   // what it could not keep. Simulated arm only.
   void enable_command_log(std::size_t capacity);
+  // Every estimate of the vision task into a queue for the pose log, taken here before
+  // start() (again later: nothing to do); null until then, or without a vision task.
+  void enable_pose_queue();
+  PoseQueue* pose_queue() { return pose_queue_.get(); }
   // Replaces the configured frame source (before start()): tests, benchmarks, and the
   // rig, which puts its own in front of the configured one (rig/arm_view.hpp).
   void use_frame_source(std::unique_ptr<vision::FrameSource> source);
@@ -148,6 +158,7 @@ class Cell {
     TripleBuffer<control::MarkingEstimate>* estimates = nullptr;
     TripleBuffer<msg::TrackerRequest>* requests = nullptr;
     control::FaultLog* faults = nullptr;
+    PoseQueue* poses = nullptr;  // every estimate, for the pose log (null: none kept)
     // The panel's record (from the last request) and the limits its fits are made with.
     msg::TrackerRequest job;
     control::IntercalibrationLimits limits;
@@ -171,6 +182,7 @@ class Cell {
   std::unique_ptr<TripleBuffer<control::MarkingEstimate>> estimates_;
   std::unique_ptr<TripleBuffer<msg::TrackerRequest>> tracker_requests_;
   std::unique_ptr<VisionTask> vision_;
+  std::unique_ptr<PoseQueue> pose_queue_;
   std::unique_ptr<control::MarkingSequence> marking_;
   std::unique_ptr<SimWorld> sim_world_;
   std::unique_ptr<drivers::SocketCanBus> can_bus_;

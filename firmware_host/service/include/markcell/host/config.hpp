@@ -294,6 +294,8 @@ struct CellConfig {
   std::string name;
   std::string results_file;  // every panel's result appended and synced here (empty: none); absolute
   std::string record_folder;  // inspection records arrive here (empty: none); absolute
+  std::string pose_log_folder;  // poses.csv and mf_tracks.csv written here (empty: none); absolute
+  std::uint64_t pose_log_rotate_mb = 64;  // each file rotated to FILE.1 past this size
   control::ExecutiveSpec executive;
   WatchdogConfig watchdog;
   SafeStopConfig safe_stop;

@@ -24,6 +24,7 @@
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/journal.hpp"
+#include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/sim/plc_script.hpp"
@@ -49,6 +50,11 @@ struct ServiceOptions {
   // Every fault as it is recorded; empty: each one a journal line.
   std::function<void(const control::Fault&)> on_fault;
   std::function<void(Nanos elapsed)> on_step;  // after each step, with the time since the start
+  // The pose log (host/pose_log.hpp): its folder (empty: none), whether it is appended to
+  // (the service) or made anew (a rig run), and its rotation size (0: never rotated).
+  std::string pose_log_folder;
+  PoseLog::Mode pose_log_mode = PoseLog::Mode::kAppend;
+  std::uint64_t pose_log_rotate_bytes = 0;
 };
 
 // Why the loop ended.
@@ -85,7 +91,14 @@ class ServiceLoop {
   // records, safety). Ends at the duration, the panel count, a stop `wait` reports, a
   // fault of the cell itself or a wedged simulation; the cell is left to the caller.
   LoopEnd supervise(const StopWait& wait);
+ private:
+  LoopEnd supervise_steps(const StopWait& wait);
+ public:
   int signal() const { return signal_; }  // the stop's signal after LoopEnd::kSignal
+  // The vision task's estimates so far into the pose log (each step does it; the last
+  // ones after the cell stops, and the destructor).
+  void write_poses();
+  const PoseLog* pose_log() const { return pose_log_.get(); }
   Nanos elapsed() const;                  // since the loop's start
 
  private:
@@ -104,6 +117,8 @@ class ServiceLoop {
   const Journal journal_;
   std::unique_ptr<ResultsFile> results_;
   std::unique_ptr<RecordFolder> records_;
+  std::unique_ptr<PoseLog> pose_log_;
+  std::uint64_t poses_dropped_seen_ = 0, poses_failed_seen_ = 0;
   sim::PlcScript script_;
   std::uint64_t written_ = 0;
   std::string status_shown_;

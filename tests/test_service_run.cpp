@@ -58,6 +58,13 @@ TEST_CASE("inspection records: every bad field is rejected with its file, line a
   CHECK(bad("panel_type: door", "panel_type: hood") == "rec.yaml:2:13: panel_type: 'hood' is not configured in panel_types");
   CHECK(bad("units: m", "units: mm") == "rec.yaml:4:8: units: must be m");
   CHECK(bad("  - id: 2", "  - id: 1").find("duplicate defect id 1") != std::string::npos);
+  // A defect map without its points (found by fuzz_record: a missing key of a read-only
+  // yaml-cpp node is invalid, and asking its type threw past the record's own errors).
+  const std::string no_points = bad("  - id: 2\n    points:", "  - id: 2\n    pints:");
+  CHECK(no_points.find("unknown key (known: id, points)") != std::string::npos);
+  const std::string missing = bad("  - id: 2\n    points:", "  - {id: 2}\n  - id: 9\n    points:");
+  CHECK(missing.find("rec.yaml:") == 0);
+  CHECK(missing.find("defects[1].points: expected a non-empty list of [x, y, z]") != std::string::npos);
   const auto first_mf = good.find("  - [", good.find("macro_features:"));
   const std::string mf_line = good.substr(first_mf, good.find('\n', first_mf) - first_mf);
   const std::string nan = bad(mf_line, "  - [.nan, 0.1, 2.0]");

@@ -119,7 +119,8 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
     if (did <= 0) fail(path, d["id"], F + ".id", "must be a positive integer");
     if (!ids.insert(did).second) fail(path, d["id"], F + ".id", "duplicate defect id " + std::to_string(did));
     const YAML::Node pts = d["points"];
-    if (!pts.IsSequence() || pts.size() == 0) fail(path, pts.IsDefined() ? pts : d, F + ".points", "expected a non-empty list of [x, y, z]");
+    // d is read-only: a missing key gives an invalid node, whose type cannot be asked.
+    if (!pts.IsDefined() || !pts.IsSequence() || pts.size() == 0) fail(path, pts.IsDefined() ? pts : d, F + ".points", "expected a non-empty list of [x, y, z]");
     if (pts.size() > static_cast<std::size_t>(control::kMaxDefectPoints))
       fail(path, pts, F + ".points", std::to_string(pts.size()) + " points, at most " + std::to_string(control::kMaxDefectPoints));
     auto& out = *job.defects.emplace_back();  // bounded above: kMaxDefects

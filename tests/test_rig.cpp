@@ -137,6 +137,46 @@ TEST_CASE("scoring: hit, miss, false spray, spray through a hole, skipped defect
   CHECK(s.error_rms == Approx(0.005).epsilon(1e-9));
 }
 
+TEST_CASE("scoring on the aim alone: the axis's distance from each centre, whatever surface there is or is not") {
+  const Eigen::Isometry3d X = facing(-0.2, 0.0, 3.1);
+  const auto still = [&](Nanos) { return X; };
+  // Defect 1 sits 30 mm proud of the plane the nozzles stand over (a bulged skin): on the
+  // aim, a nozzle right above it hits it exactly, wherever the surface is.
+  const std::vector<TrueDefect> defects = {{1, {0.1, -0.1, 0.03}}, {2, {-0.2, -0.25, 0}}};
+  Spray tilted = nozzle_over(X, 0.0, 0.2, 0.2);  // turned -30 deg about x: its axis misses both
+  tilted.X_CamR_Nozzle = tilted.X_CamR_Nozzle * Eigen::AngleAxisd(-M_PI / 6, Eigen::Vector3d::UnitX());
+  const std::vector<Spray> sprays = {
+      nozzle_over(X, 0.1, -0.1, 0.2),     // on defect 1's axis
+      nozzle_over(X, -0.2, -0.243, 0.2),  // 7 mm beside defect 2: hit within 10 mm
+      nozzle_over(X, 0.0, 0.2, 0.2),      // over the window opening: no panel, but scored on the aim
+      nozzle_over(X, 0.1, -0.1, -0.2),    // behind defect 1 (it is behind the nozzle): no hit
+      tilted,
+  };
+  const Score s = score_sprays_by_aim(still, defects, sprays, {}, 0.010);
+  CHECK(s.scored_on == ScoredOn::kAim);
+  REQUIRE(s.sprays.size() == 5);
+  CHECK(s.sprays[0].hit);
+  CHECK(s.sprays[0].distance == Approx(0.0).margin(1e-12));
+  CHECK(s.sprays[0].p_CamR.isApprox(X * Eigen::Vector3d(0.1, -0.1, 0.03), 1e-12));  // the axis's point nearest the centre
+  CHECK(s.sprays[1].hit);
+  CHECK(s.sprays[1].nearest_defect == 2);
+  CHECK(s.sprays[1].distance == Approx(0.007).epsilon(1e-9));
+  CHECK_FALSE(s.sprays[2].hit);
+  CHECK_FALSE(s.sprays[2].on_panel);
+  // Over the window, straight down: defect 1 is sqrt(0.1^2 + 0.3^2) from its axis.
+  CHECK(s.sprays[2].distance == Approx(std::hypot(0.1, 0.3)).epsilon(1e-9));
+  CHECK_FALSE(s.sprays[3].hit);
+  // Tilted: the axis from (0, 0.2, 0.2) along -z turned by -30 deg about x, i.e. towards
+  // (0, -sin 30, -cos 30), both centres in front; their distances from it in closed form.
+  const Eigen::Vector3d o(0.0, 0.2, 0.2), d(0.0, -0.5, -std::sqrt(3.0) / 2), c2(-0.2, -0.25, 0.0), c1(0.1, -0.1, 0.03);
+  const auto from_axis = [&](const Eigen::Vector3d& c) { return ((c - o) - (c - o).dot(d) * d).norm(); };
+  CHECK(s.sprays[4].distance == Approx(std::min(from_axis(c1), from_axis(c2))).epsilon(1e-9));
+  CHECK_FALSE(s.sprays[4].hit);
+  CHECK(s.marked == 2);
+  CHECK(s.false_sprays == 3);
+  CHECK(s.error_max == Approx(0.007).epsilon(1e-9));
+}
+
 TEST_CASE("scoring: the panel where it is at the moment of spraying, tilted nozzles, bent panels") {
   const markcell::rig::PanelShape door = markcell::rig::door_shape();  // bent: z = -0.12 x^2
   SpeedProfile speed;

@@ -57,6 +57,7 @@ TEST_CASE("markcell sim paper-door: all three dings marked within the radius, no
   INFO(json);
   CHECK(json.find("\"scenario\": \"paper-door\"") != std::string::npos);
   CHECK(json.find("\"predictor\": \"kalman\"") != std::string::npos);
+  CHECK(parse_json(json)["scored_on"] == "surface");  // the rig's own door
   CHECK(json_number(json, "defects", "planned") == 3);
   CHECK(json_number(json, "defects", "marked") == 3);
   CHECK(json_number(json, "defects", "skipped") == 0);
@@ -561,7 +562,8 @@ TEST_CASE("a recording made with another calibration than the configuration's is
   test::TempDir dir;
   const auto rec = dir.path() / "recording";
   std::filesystem::copy(sim_dir() + "/recording", rec, std::filesystem::copy_options::recursive);
-  // Another tool's recording: no `generator: markcell sim`, and its cameras 2 mm further apart.
+  // Another tool's recording (no `generator: markcell sim`), replayed with a configuration
+  // whose cameras are 2 mm further apart than the ones that took it.
   std::string manifest = read_file((rec / "recording.yaml").string());
   const auto at = manifest.find("generator: markcell sim\n");
   REQUIRE(at != std::string::npos);
@@ -572,31 +574,41 @@ TEST_CASE("a recording made with another calibration than the configuration's is
   vision::StereoCalibration cal = vision::load_stereo_calibration(recorded);
   const double tx = cal.X_CamR_CamL.translation().x();
   cal.X_CamR_CamL.translation().x() = tx + (tx < 0 ? -0.002 : 0.002);
-  vision::save_stereo_calibration(recorded, cal);
+  const std::string configured = (dir.path() / "wider_stereo.yaml").string();
+  vision::save_stereo_calibration(configured, cal);
+  std::string config_text = test::example_config_text({});
+  const std::string example_stereo = source_path("config/calibration/marking_stereo.yaml");
+  const auto stereo_at = config_text.find("  stereo: " + example_stereo + " ");
+  REQUIRE(stereo_at != std::string::npos);
+  config_text.replace(stereo_at, example_stereo.size() + 10, "  stereo: " + configured);
+  const std::string config = " --config " + dir.write("cell.yaml", config_text);
 
   const std::string out = (dir.path() / "out").string();
-  const auto refused = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+  const auto refused = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() + config +
                                    " --one-predictor -q --out " + out);
   INFO(refused.output);
   CHECK(refused.exit_code != 0);
-  CHECK(refused.output.find("the recording's calibration " + recorded + " and the configuration's calibration.stereo") !=
-        std::string::npos);
-  CHECK(refused.output.find("marking_stereo.yaml differ (largest difference: T[0] (X_CamR_CamL, m)") != std::string::npos);
+  CHECK(refused.output.find("the recording's calibration " + recorded + " and the configuration's calibration.stereo " +
+                            configured + " differ (largest difference: T[0] (X_CamR_CamL, m)") != std::string::npos);
   CHECK(refused.output.find("--calibration FILE") != std::string::npos);
   CHECK_FALSE(std::filesystem::exists(out + "/report.json"));
 
   // Told to use the recording's: replayed with it, and (not markcell sim's) without the
   // simulated arm painted in.
-  const auto told = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+  const auto told = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() + config +
                                 " --one-predictor -q --calibration " + recorded + " --out " + out);
   INFO(told.output);
   REQUIRE(told.exit_code == 0);
   const std::string json = read_file(out + "/report.json");
   CHECK(parse_json(json)["calibration"] == recorded);
   CHECK(json_number(json, "vision", "arm_drawn") == 0);
+  // Not the rig's own recording: scored on the aim, never on the rig's built-in door.
+  CHECK(parse_json(json)["scored_on"] == "aim");
+  CHECK(json_number(json, "defects", "marked") == 3);
+  CHECK(json_number(json, "false_sprays", "false_sprays") == 0);
   CHECK(json_number(json, "vision", "frames") > 20);
   // --draw-arm paints it into any recording.
-  const auto drawn = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+  const auto drawn = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() + config +
                                  " --one-predictor -q --draw-arm --calibration " + recorded + " --out " + out);
   INFO(drawn.output);
   REQUIRE(drawn.exit_code == 0);

@@ -232,7 +232,15 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   if (!rec.manifest().has_truth || !rec.manifest().has_defects) return run;
   const TruthTrack truth(rec.truth(), source);
   if (truth.empty()) return run;
-  const rig::PanelShape panel = rig::panel_shape(rec.manifest().panel_type);
+  // The rig knows the surface of its own recordings' panels only: any other recording
+  // (another tool's, even of a panel type named `door`) is scored on the aim alone.
+  std::optional<rig::PanelShape> panel;
+  if (rec.manifest().generator == kRigGenerator) {
+    try {
+      panel = rig::panel_shape(rec.manifest().panel_type);
+    } catch (const std::invalid_argument&) {
+    }
+  }
   std::vector<TrueDefect> defects;
   for (const auto& d : rec.defects()) defects.push_back({d.id, d.p_Panel});
   auto true_centre = [&](int id, Nanos t) -> std::optional<Eigen::Vector3d> {
@@ -256,7 +264,9 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
     if (d.skipped != control::SkipReason::kNone) skipped.push_back({d.id, std::string(control::to_string(d.skipped))});
   }
-  run.score = score_sprays(panel, [&](Nanos t) { return truth.at(t); }, defects, sprays, skipped, options.radius);
+  const auto truth_at = [&](Nanos t) { return truth.at(t); };
+  run.score = panel ? score_sprays(*panel, truth_at, defects, sprays, skipped, options.radius)
+                    : score_sprays_by_aim(truth_at, defects, sprays, skipped, options.radius);
   run.scored = true;
   for (int i = 0; i < run.panel.defects.ssize(); ++i) {
     const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
@@ -271,11 +281,12 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   // (CamR at that frame) onto where P put them, X_P_CamRref; once per P.
   std::vector<std::pair<Nanos, Eigen::Isometry3d>> placements;
   for (const auto& frame : run.panel_frames) {
+    if (!panel) break;  // no true MFs to place P with: P taken as CamR at its set-up frame
     std::vector<Eigen::Vector3d> a, b;
-    const std::size_t n = std::min(frame.mfs.size(), panel.macro_features.size());
+    const std::size_t n = std::min(frame.mfs.size(), panel->macro_features.size());
     for (std::size_t k = 0; k < n; ++k)
       if (frame.mfs[k].found) {
-        a.push_back(truth.at(frame.reference_time) * panel.macro_features[k]);
+        a.push_back(truth.at(frame.reference_time) * panel->macro_features[k]);
         b.push_back(frame.mfs[k].p_P);
       }
     // Robust: a search can take another corner for an MF (a person in front); the

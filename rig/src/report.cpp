@@ -125,6 +125,9 @@ Json run_json(const PredictorRun& r) {
        {{"planned", c.planned}, {"marked", c.marked}, {"skipped", c.skipped}, {"sprayed", c.sprayed}, {"skipped_reasons", skipped}}},
       {"plan", plan_json(r)},
       {"false_sprays", known_or_null(r.scored, r.score.false_sprays)},
+      // What a spray was judged by: where it landed on the recorded panel's surface, or
+      // (a panel the rig has no surface of) how far its axis passed from each defect.
+      {"scored_on", known_or_null(r.scored, std::string(r.score.scored_on == ScoredOn::kSurface ? "surface" : "aim"))},
       {"marking_error_mm",
        {{"max", known_or_null(marked, num(r.score.error_max * 1000))}, {"rms", known_or_null(marked, num(r.score.error_rms * 1000))}}},
       {"prediction_error_mm",
@@ -409,6 +412,9 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
                   : std::string("-");
   }, "-");
   row("false sprays", [](const PredictorRun& r) { return r.scored ? std::to_string(r.score.false_sprays) : std::string("-"); }, "-");
+  row("scored on", [](const PredictorRun& r) {
+    return r.scored ? std::string(r.score.scored_on == ScoredOn::kSurface ? "surface" : "aim") : std::string("-");
+  }, "-");
   row("marking error max / rms, mm", [](const PredictorRun& r) {
     return r.scored && r.score.marked > 0 ? fixed(r.score.error_max * 1000, 1) + " / " + fixed(r.score.error_rms * 1000, 1) : std::string("-");
   }, "region 20-30 mm");

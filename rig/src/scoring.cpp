@@ -5,10 +5,13 @@
 
 namespace markcell::rig {
 
-Score score_sprays(const rig::PanelShape& panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
-                   const std::vector<TrueDefect>& defects, const std::vector<Spray>& sprays,
-                   const std::vector<SkippedDefect>& skipped, double radius) {
+namespace {
+// `panel` null: scored on the aim.
+Score score(const rig::PanelShape* panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
+            const std::vector<TrueDefect>& defects, const std::vector<Spray>& sprays, const std::vector<SkippedDefect>& skipped,
+            double radius) {
   Score score;
+  score.scored_on = panel != nullptr ? ScoredOn::kSurface : ScoredOn::kAim;
   for (const auto& d : defects) {
     DefectResult r;
     r.id = d.id;
@@ -22,15 +25,22 @@ Score score_sprays(const rig::PanelShape& panel, const std::function<Eigen::Isom
     const Eigen::Isometry3d X_CamR_Panel = X_CamR_Panel_at(spray.time);
     const Eigen::Isometry3d X_Panel_Nozzle = X_CamR_Panel.inverse() * spray.X_CamR_Nozzle;
     const Eigen::Vector3d o = X_Panel_Nozzle.translation();
-    const Eigen::Vector3d d = -X_Panel_Nozzle.linear().col(2);
-    const double t = rig::intersect_panel(panel, o, d);
+    const Eigen::Vector3d d = -X_Panel_Nozzle.linear().col(2);  // unit: a rotation's column
+    const double t = panel != nullptr ? rig::intersect_panel(*panel, o, d) : 1.0;
     if (t > 0) {
-      r.on_panel = true;
+      r.on_panel = panel != nullptr;
       const Eigen::Vector3d p_Panel = o + t * d;
       r.p_CamR = X_CamR_Panel * p_Panel;
       double best = std::numeric_limits<double>::infinity();
       for (std::size_t i = 0; i < defects.size(); ++i) {
-        const double dist = (defects[i].p_Panel - p_Panel).norm();
+        // On the surface: landing point to centre. On the aim: the centre's distance from
+        // the axis, for a centre in front of the nozzle (behind it: never hit).
+        const Eigen::Vector3d c = defects[i].p_Panel - o;
+        const double along = c.dot(d);
+        const double dist = panel != nullptr ? (defects[i].p_Panel - p_Panel).norm()
+                            : along > 0      ? (c - along * d).norm()
+                                             : std::numeric_limits<double>::infinity();
+        if (panel == nullptr && dist < best) r.p_CamR = X_CamR_Panel * (o + along * d);  // the axis's nearest point
         if (dist < best) {
           best = dist;
           r.nearest_defect = defects[i].id;
@@ -60,6 +70,18 @@ Score score_sprays(const rig::PanelShape& panel, const std::function<Eigen::Isom
   }
   score.error_rms = score.marked > 0 ? std::sqrt(sum_sq / score.marked) : 0.0;
   return score;
+}
+}  // namespace
+
+Score score_sprays(const rig::PanelShape& panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
+                   const std::vector<TrueDefect>& defects, const std::vector<Spray>& sprays,
+                   const std::vector<SkippedDefect>& skipped, double radius) {
+  return score(&panel, X_CamR_Panel_at, defects, sprays, skipped, radius);
+}
+
+Score score_sprays_by_aim(const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at, const std::vector<TrueDefect>& defects,
+                          const std::vector<Spray>& sprays, const std::vector<SkippedDefect>& skipped, double radius) {
+  return score(nullptr, X_CamR_Panel_at, defects, sprays, skipped, radius);
 }
 
 }  // namespace markcell::rig

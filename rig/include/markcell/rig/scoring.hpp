@@ -6,6 +6,10 @@
 // marked when a spray lands within the radius of it; a spray that lands within the
 // radius of no defect (or misses the panel) is a false spray. Defects the controller
 // skipped are listed with its reasons.
+//
+// Without the recorded panel's surface (a recording of a panel the rig has no shape of),
+// a spray is scored on its aim alone: the distance of the nozzle's axis from each true
+// defect centre, never on another panel's surface.
 #include <functional>
 #include <optional>
 #include <string>
@@ -35,12 +39,14 @@ struct SkippedDefect {
   std::string reason;
 };
 
+enum class ScoredOn { kSurface, kAim };
+
 struct SprayResult {
   Nanos time = 0;
-  bool on_panel = false;            // the axis met panel material
+  bool on_panel = false;            // the axis met panel material (always false scored on the aim)
   Eigen::Vector3d p_CamR = Eigen::Vector3d::Zero();  // where, when on_panel
   int nearest_defect = -1;          // id, -1 when there is no defect
-  double distance = 0;              // to that defect's centre, m
+  double distance = 0;              // to that defect's centre (from the axis, scored on the aim), m
   bool hit = false;                 // within the radius
 };
 
@@ -53,6 +59,7 @@ struct DefectResult {
 };
 
 struct Score {
+  ScoredOn scored_on = ScoredOn::kSurface;
   std::vector<SprayResult> sprays;
   std::vector<DefectResult> defects;
   int planned = 0;                  // defects the controller did not skip
@@ -66,5 +73,8 @@ struct Score {
 Score score_sprays(const rig::PanelShape& panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
                    const std::vector<TrueDefect>& defects, const std::vector<Spray>& sprays,
                    const std::vector<SkippedDefect>& skipped, double radius);
+// The same on the aim alone (ScoredOn::kAim): no surface.
+Score score_sprays_by_aim(const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at, const std::vector<TrueDefect>& defects,
+                          const std::vector<Spray>& sprays, const std::vector<SkippedDefect>& skipped, double radius);
 
 }  // namespace markcell::rig

@@ -12,6 +12,7 @@
 #include "markcell/common/geometry.hpp"
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/rig/render.hpp"
+#include "sheet_mesh.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -126,10 +127,10 @@ TEST_CASE("the rigid fit stays a rotation where a reflection would fit better, a
 TEST_CASE("the robust fit finds the transform and the outliers among ten macro-features") {
   std::mt19937 rng(6);
   std::uniform_real_distribution<double> u(-0.5, 0.5);
-  const PanelShape door = door_shape();
+  const std::vector<Eigen::Vector3d> door_mfs = test::door_sheet_corners();
   for (int trial = 0; trial < 20; ++trial) {
     const Eigen::Isometry3d X = random_pose(rng, 3.0);
-    std::vector<Eigen::Vector3d> a(door.macro_features.begin(), door.macro_features.end()), b;
+    std::vector<Eigen::Vector3d> a(door_mfs.begin(), door_mfs.end()), b;
     for (const auto& p : a) b.push_back(X * p);
     // Three wrong correspondences (a mismatched corner, an occluded one re-found elsewhere).
     const std::array<std::size_t, 3> wrong = {1, 4, 8};
@@ -145,10 +146,10 @@ TEST_CASE("the robust fit finds the transform and the outliers among ten macro-f
 
 TEST_CASE("triangulation and the fits allocate nothing") {
   const Rig rig;
-  const PanelShape door = door_shape();
+  const std::vector<Eigen::Vector3d> door_mfs = test::door_sheet_corners();
   std::array<Eigen::Vector3d, 10> a{}, b{};
   for (std::size_t i = 0; i < 10; ++i) {
-    a[i] = door.macro_features[i];
+    a[i] = door_mfs[i];
     b[i] = a[i] + Eigen::Vector3d(0.1, 0.2, 3.0);
   }
   std::array<bool, 10> inlier{};

@@ -26,6 +26,7 @@
 #include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
+#include "markcell/rig/panel.hpp"
 #include "markcell/rig/scoring.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "alloc_guard.hpp"
@@ -372,7 +373,9 @@ TEST_CASE("soak: 200 consecutive panels in simulated time, every defect marked, 
   };
   std::vector<rig::TrueDefect> defects;
   for (const auto& d : rec.defects()) defects.push_back({d.id, d.p_Panel});
-  const rig::PanelShape shape = rig::panel_shape(rec.manifest().panel_type);
+  // Scored on the recording's own panel mesh.
+  const rig::Panel shape = rig::load_panel_mesh(rec.manifest().panel_type, rec.folder() + "/" + rec.manifest().panel_mesh,
+                                                rec.manifest().panel_mesh_metres_per_unit);
   const Eigen::Isometry3d X_CamR_Base = cell.X_Base_CamR().inverse();
 
   constexpr int kPanels = 200;
@@ -568,6 +571,10 @@ TEST_CASE("a recording made with another calibration than the configuration's is
   const auto at = manifest.find("generator: markcell sim\n");
   REQUIRE(at != std::string::npos);
   manifest.erase(at, std::string("generator: markcell sim\n").size());
+  // ... and without the panel's mesh: nothing to score the sprays on but the aim.
+  const auto mesh_at = manifest.find("panel_mesh: panel.ply\n");
+  REQUIRE(mesh_at != std::string::npos);
+  manifest.erase(mesh_at, std::string("panel_mesh: panel.ply\n").size());
   std::ofstream((rec / "recording.yaml").string()) << manifest;
   const auto manifest_calibration = vision::Recording::open(rec.string()).manifest().calibration;
   const std::string recorded = (rec / manifest_calibration).string();
@@ -602,7 +609,7 @@ TEST_CASE("a recording made with another calibration than the configuration's is
   const std::string json = read_file(out + "/report.json");
   CHECK(parse_json(json)["calibration"] == recorded);
   CHECK(json_number(json, "vision", "arm_drawn") == 0);
-  // Not the rig's own recording: scored on the aim, never on the rig's built-in door.
+  // No mesh in the recording: scored on the aim, never on the configuration's door.
   CHECK(parse_json(json)["scored_on"] == "aim");
   CHECK(json_number(json, "defects", "marked") == 3);
   CHECK(json_number(json, "false_sprays", "false_sprays") == 0);
@@ -614,4 +621,32 @@ TEST_CASE("a recording made with another calibration than the configuration's is
   REQUIRE(drawn.exit_code == 0);
   const std::string with_arm = read_file(out + "/report.json");
   CHECK(json_number(with_arm, "vision", "arm_drawn") == json_number(with_arm, "vision", "frames"));
+}
+
+TEST_CASE("a recording's panel mesh that is cut short, or outside its folder, is refused before the replay runs") {
+  test::TempDir dir;
+  const auto rec = dir.path() / "recording";
+  std::filesystem::copy(sim_dir() + "/recording", rec, std::filesystem::copy_options::recursive);
+  const std::string mesh = (rec / "panel.ply").string();
+  const std::string bytes = read_file(mesh);
+  std::ofstream(mesh, std::ios::binary | std::ios::trunc) << bytes.substr(0, bytes.size() / 2);
+  const std::string out = (dir.path() / "out").string();
+  const auto cut = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+                               " --one-predictor -q --out " + out);
+  INFO(cut.output);
+  CHECK(cut.exit_code != 0);
+  CHECK(cut.output.find(mesh + ": the PLY body ends before its header's counts") != std::string::npos);
+  CHECK_FALSE(std::filesystem::exists(out + "/commands.log"));
+
+  std::string manifest = read_file((rec / "recording.yaml").string());
+  const auto at = manifest.find("panel_mesh: panel.ply\n");
+  REQUIRE(at != std::string::npos);
+  manifest.replace(at, std::string("panel_mesh: panel.ply\n").size(), "panel_mesh: ../../door.ply\n");
+  std::ofstream((rec / "recording.yaml").string()) << manifest;
+  const auto outside = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + rec.string() +
+                                   " --one-predictor -q --out " + out);
+  INFO(outside.output);
+  CHECK(outside.exit_code != 0);
+  CHECK(outside.output.find("recording.yaml: key 'panel_mesh': '../../door.ply' leaves the recording folder (..)") !=
+        std::string::npos);
 }

@@ -18,6 +18,7 @@
 #include "markcell/vision/panel_tracker.hpp"
 #include "markcell/rig/render.hpp"
 #include "markcell/vision/stereo_rig.hpp"
+#include "sheet_mesh.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -40,12 +41,12 @@ struct Sequence {
   rig::Scenario scenario;
   StereoCalibration calibration = paper_rig();
   RenderSettings render;
-  rig::PanelShape panel;
+  rig::Panel panel;
   rig::LineMotion motion;
   StereoRenderer renderer;
   explicit Sequence(const std::string& name)
       : scenario(rig::make_scenario(name, 3)),
-        panel(panel_shape(scenario.panel_type)),
+        panel(test::shipped_panel(scenario.panel_type)),
         motion(scenario.speed, scenario.path, scenario.duration),
         renderer(calibration, render) {}
   void frame(Nanos t, std::uint64_t seed, const std::vector<Occluder>& occ, cv::Mat& l, cv::Mat& r) const {
@@ -60,7 +61,7 @@ struct Tracked : Sequence {
   PanelTracker tracker;
   explicit Tracked(const std::string& name)
       : Sequence(name),
-        model(rig::reference_panel_type(scenario, calibration, render)),
+        model(rig::reference_panel_type(scenario, panel, calibration, render)),
         rig(calibration),
         tracker(rig, model, TrackerParams{}) {}
 };
@@ -192,7 +193,7 @@ TEST_CASE("LK and corner refinement agree with cv::calcOpticalFlowPyrLK, cv::cor
 
 TEST_CASE("panel type files: round trip, and errors that name the file and key") {
   const Sequence s("paper-door");
-  const PanelTypeModel m = rig::reference_panel_type(s.scenario, s.calibration, s.render);
+  const PanelTypeModel m = rig::reference_panel_type(s.scenario, s.panel, s.calibration, s.render);
   REQUIRE(m.count() == 10);
   test::TempDir dir;
   save_panel_type((dir.path() / "door.yaml").string(), m);

@@ -15,6 +15,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "sheet_mesh.hpp"
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/recording.hpp"
 #include "markcell/rig/render.hpp"
@@ -101,8 +102,9 @@ TEST_CASE("rendered edges are where the camera model puts them, to the renderer'
   s.blur_sigma_px = 0;
   s.texture_amplitude = 0;
   const StereoRenderer r(paper_rig(), s);
-  PanelShape door = door_shape();
-  door.bend = 0;
+  test::SheetSpec flat = test::door_sheet();
+  flat.bend_x = 0;
+  const Panel door = test::sheet_panel("door", flat, {});
   const Eigen::Isometry3d X_CamR_Panel = facing(-0.2225, 0.05, 3.1);  // between the cameras: both edges in both views
   cv::Mat left, right;
   r.render(door, X_CamR_Panel, 1.0, 1, {}, left, right);
@@ -132,7 +134,7 @@ TEST_CASE("rendered edges are where the camera model puts them, to the renderer'
 
 TEST_CASE("the macro-features of the bent door are found by OpenCV's corner refinement where projected") {
   const StereoRenderer r(paper_rig(), RenderSettings{});  // nominal blur, noise and texture
-  const PanelShape door = door_shape();
+  const Panel door = test::shipped_panel("door");
   REQUIRE(door.macro_features.size() == 10);
   const Eigen::Isometry3d X_CamR_Panel = facing(-0.2225, 0.05, 3.1);
   cv::Mat left, right;
@@ -156,7 +158,7 @@ TEST_CASE("the macro-features of the bent door are found by OpenCV's corner refi
 
 TEST_CASE("a render is identical for the same seed, different for another, noise as configured") {
   const StereoRenderer r(paper_rig(), RenderSettings{});
-  const PanelShape fender = fender_shape();
+  const Panel fender = test::shipped_panel("fender");
   const Eigen::Isometry3d X = facing(0.0, 0.0, 3.1);
   cv::Mat l1, r1, l2, r2, l3, r3;
   r.render(fender, X, 1.0, 42, {}, l1, r1);
@@ -184,8 +186,9 @@ TEST_CASE("an occluder in front of the panel hides it") {
   // A vertical arm link 1 m in front of the right camera, straight ahead.
   const std::vector<Occluder> arm{{Eigen::Vector3d(0, -0.3, 2.0), Eigen::Vector3d(0, 0.3, 2.0), 0.06, 25}};
   cv::Mat l0, r0, l1, r1;
-  r.render(door_shape(), X, 1.0, 1, {}, l0, r0);
-  r.render(door_shape(), X, 1.0, 1, arm, l1, r1);
+  const Panel door = test::shipped_panel("door");
+  r.render(door, X, 1.0, 1, {}, l0, r0);
+  r.render(door, X, 1.0, 1, arm, l1, r1);
   const Eigen::Vector2d centre = r.project(1, {0, -0.25, 2.0});
   CHECK(r0.at<std::uint8_t>(static_cast<int>(centre.y()), static_cast<int>(centre.x())) > 80);  // panel
   CHECK(r1.at<std::uint8_t>(static_cast<int>(centre.y()), static_cast<int>(centre.x())) == 25);  // the arm
@@ -195,7 +198,7 @@ TEST_CASE("recordings round-trip: images, times, truth and defects") {
   test::TempDir dir;
   const std::string folder = (dir.path() / "rec").string();
   const StereoRenderer r(paper_rig(), RenderSettings{});
-  const PanelShape door = door_shape();
+  const Panel door = test::shipped_panel("door");
   RecordingManifest m;
   m.panel_type = "door";
   m.frame_rate_hz = 30;
@@ -218,7 +221,7 @@ TEST_CASE("recordings round-trip: images, times, truth and defects") {
       rights.push_back(right);
       poses.push_back(X);
     }
-    w.set_defects({{1, Eigen::Vector3d(0.1, -0.1, door.surface_z(0.1)), 0.01}});
+    w.set_defects({{1, door.surface_point(0.1, -0.1), 0.01}});
   }
   save_stereo_calibration(folder + "/stereo.yaml", paper_rig());
   const Recording rec = Recording::open(folder);

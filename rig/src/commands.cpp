@@ -10,6 +10,7 @@
 #include "markcell/host/stop_signal.hpp"
 #include "markcell/rig/render.hpp"
 #include "markcell/rig/replay.hpp"
+#include "markcell/rig/panel.hpp"
 #include "markcell/rig/scenario.hpp"
 #include "markcell/sim/plc_script.hpp"
 #include "markcell/vision/calibration_io.hpp"
@@ -51,6 +52,13 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, std:
   if (std::filesystem::exists(recording / "recording.yaml")) std::filesystem::remove_all(recording);
   const auto marking = vision::load_stereo_calibration(config.calibration.stereo);
   const auto scanner = vision::load_stereo_calibration(scanner_file);
+  rig::Panel panel;
+  try {
+    panel = rig::configured_panel(config.panel_types, scenario.panel_type);
+  } catch (const std::exception& e) {
+    std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
+    return kExitConfig;
+  }
   rig::GenerateOptions g;
   if (seconds_limit > 0) g.max_duration = static_cast<Nanos>(seconds_limit * 1e9);
   g.fps = fps;
@@ -58,7 +66,7 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, std:
   if (options.progress) std::cerr << "markcell sim: rendering " << scenario_name << " into " << recording.string() << "\n";
   std::size_t frames = 0;
   try {
-    frames = rig::generate_recording(scenario, recording.string(), marking, scanner, rig::RenderSettings{}, g);
+    frames = rig::generate_recording(scenario, panel, recording.string(), marking, scanner, rig::RenderSettings{}, g);
   } catch (const rig::GenerationStopped& e) {
     std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
     return 128 + e.signal;

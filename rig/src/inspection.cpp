@@ -7,7 +7,7 @@
 
 namespace markcell::rig {
 
-InspectionRecord simulate_inspection(const std::string& panel_id, const rig::PanelShape& panel,
+InspectionRecord simulate_inspection(const std::string& panel_id, const rig::Panel& panel,
                                      const std::vector<DefectSpec>& defects, const vision::StereoCalibration& scanner,
                                      const Eigen::Isometry3d& X_SL_Panel, const InspectionNoise& noise, std::uint64_t seed) {
   std::mt19937_64 rng(seed);
@@ -36,8 +36,10 @@ InspectionRecord simulate_inspection(const std::string& panel_id, const rig::Pan
       const double rho = noise.ding_radius * std::sqrt(unit(rng)), phi = 2 * M_PI * unit(rng);
       const double x = d.x + rho * std::cos(phi), y = d.y + rho * std::sin(phi);
       const double dent = noise.ding_depth * std::exp(-0.5 * (rho * rho) / (0.4 * noise.ding_radius * 0.4 * noise.ding_radius));
-      const Eigen::Vector3d p_Panel = panel.surface_point(x, y) - panel.normal(x) * (dent + depth(rng));
-      out.points_SL.push_back(X_SL_Panel * p_Panel);
+      const double pressed = dent + depth(rng);
+      const MeshHit front = panel.surface->from_front(x, y);
+      if (!front.hit()) continue;  // over a hole or past an edge: the scanner sees no surface there
+      out.points_SL.push_back(X_SL_Panel * (front.p - front.normal * pressed));
     }
     r.defects.push_back(out);
   }

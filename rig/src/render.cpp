@@ -13,79 +13,6 @@
 
 namespace markcell::rig {
 
-bool PanelShape::solid(double x, double y) const {
-  if (x < -width / 2 || x > width / 2 || y < -height / 2 || y > height / 2) return false;
-  for (const auto& r : cutouts)
-    if (x > r.x0 && x < r.x1 && y > r.y0 && y < r.y1) return false;
-  for (const auto& h : holes)
-    if ((x - h.x) * (x - h.x) + (y - h.y) * (y - h.y) < h.radius * h.radius) return false;
-  return true;
-}
-
-double intersect_panel(const PanelShape& panel, const Eigen::Vector3d& o, const Eigen::Vector3d& d) {
-  // o + t d on z = -k x^2:  k dx^2 t^2 + (2 k ox dx + dz) t + (k ox^2 + oz) = 0
-  const double k = panel.bend;
-  const double A = k * d.x() * d.x(), B = 2 * k * o.x() * d.x() + d.z(), C = k * o.x() * o.x() + o.z();
-  double t = -1;
-  if (std::abs(A) < 1e-12) {
-    if (std::abs(B) > 1e-12) t = -C / B;
-  } else {
-    const double disc = B * B - 4 * A * C;
-    if (disc >= 0) {
-      const double s = std::sqrt(disc);
-      const double t1 = (-B - s) / (2 * A), t2 = (-B + s) / (2 * A);
-      // The nearer crossing in front; if it falls in a hole, the sheet bends away and
-      // the farther one is outside the outline in every panel here.
-      t = t1 > 0 ? (t2 > 0 ? std::min(t1, t2) : t1) : t2;
-    }
-  }
-  if (t <= 0) return -1;
-  const Eigen::Vector3d p = o + t * d;
-  return panel.solid(p.x(), p.y()) ? t : -1;
-}
-
-PanelShape door_shape() {
-  PanelShape p;
-  p.name = "door";
-  p.width = 1.10;
-  p.height = 0.80;
-  p.bend = 0.12;
-  p.cutouts = {{-0.42, 0.10, 0.30, 0.34},    // window opening
-               {0.36, -0.02, 0.46, 0.03}};   // handle recess
-  p.holes = {{-0.30, -0.22, 0.015}, {0.05, -0.28, 0.012}};
-  const double w = p.width / 2, h = p.height / 2;
-  const std::vector<std::pair<double, double>> corners = {
-      {-w, -h}, {w, -h}, {w, h}, {-w, h},                          // outer corners
-      {-0.42, 0.10}, {0.30, 0.10}, {0.30, 0.34}, {-0.42, 0.34},    // window opening
-      {0.36, -0.02}, {0.46, 0.03}};                                // handle recess
-  for (const auto& [x, y] : corners) p.macro_features.push_back(p.surface_point(x, y));
-  return p;
-}
-
-PanelShape fender_shape() {
-  PanelShape p;
-  p.name = "fender";
-  p.width = 0.95;
-  p.height = 0.60;
-  p.bend = 0.25;
-  p.cutouts = {{-0.475, -0.30, -0.15, -0.05},  // wheel-arch notch at the lower left
-               {0.10, 0.08, 0.28, 0.18}};      // indicator opening
-  p.holes = {{0.35, -0.20, 0.012}, {-0.30, 0.20, 0.012}};
-  const double w = p.width / 2, h = p.height / 2;
-  const std::vector<std::pair<double, double>> corners = {
-      {-w, h}, {w, h}, {w, -h}, {-0.15, -h},          // outer corners (the notch cuts one)
-      {-w, -0.05}, {-0.15, -0.05},                    // the notch's inner corners
-      {0.10, 0.08}, {0.28, 0.08}, {0.28, 0.18}, {0.10, 0.18}};  // indicator opening
-  for (const auto& [x, y] : corners) p.macro_features.push_back(p.surface_point(x, y));
-  return p;
-}
-
-PanelShape panel_shape(const std::string& name) {
-  if (name == "door") return door_shape();
-  if (name == "fender") return fender_shape();
-  throw std::invalid_argument("unknown panel type '" + name + "' (known: door, fender)");
-}
-
 Eigen::Vector2d project_point(const vision::CameraModel& c, const Eigen::Vector3d& p) {
   const double x = p.x() / p.z(), y = p.y() / p.z();
   double k1 = 0, k2 = 0, p1 = 0, p2 = 0, k3 = 0;
@@ -290,7 +217,7 @@ void StereoRenderer::cast(int camera, const Eigen::Isometry3d& X_CamR_Object, st
   image.convertTo(out, CV_8U);  // rounds and saturates
 }
 
-void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
+void StereoRenderer::render_view(int camera, const Panel& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
                                  std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const {
   const Eigen::Isometry3d X_Cam_CamR = camera == 0 ? cameras_.X_CamR_CamL.inverse() : Eigen::Isometry3d::Identity();
   const Eigen::Matrix3d R_Panel_Cam = (X_Cam_CamR * X_CamR_Panel).linear().transpose();
@@ -300,12 +227,12 @@ void StereoRenderer::render_view(int camera, const PanelShape& panel, const Eige
   const auto shade = [&](const Eigen::Vector3d& o_Panel, const Eigen::Vector3d& d, const Eigen::Vector3d& d_Cam) {
     double grey = settings_.background_grey;
     double depth = 1e9;
-    const double t = intersect_panel(panel, o_Panel, d);
-    if (t > 0) {
-      const Eigen::Vector3d p = o_Panel + t * d;
-      const double lambert = std::max(0.0, panel.normal(p.x()).dot(light_Panel));
-      grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(p.x(), p.y());
-      depth = t;
+    const MeshHit hit = panel.surface->intersect(o_Panel, d);
+    if (hit.hit()) {
+      // The triangle's normal: the meshes' facets turn by milliradians, a tenth of a grey level.
+      const double lambert = std::max(0.0, hit.normal.dot(light_Panel));
+      grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(hit.p.x(), hit.p.y());
+      depth = hit.t;
     }
     for (const auto& oc : occ_Cam) {
       const double to = hit_capsule(d_Cam, oc);
@@ -397,7 +324,7 @@ void StereoRenderer::render_board(int cols, int rows, double square, const Eigen
   cast(1, X_CamR_Board, seed, 1.0, shade, right);
 }
 
-void StereoRenderer::render(const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,
+void StereoRenderer::render(const Panel& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,
                             const std::vector<Occluder>& occluders, cv::Mat& left, cv::Mat& right) const {
   render_view(0, panel, X_CamR_Panel, exposure, seed, occluders, left);
   render_view(1, panel, X_CamR_Panel, exposure, seed, occluders, right);

@@ -18,6 +18,7 @@
 #include "markcell/rig/hil_peer.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/recording.hpp"
+#include "markcell/rig/panel.hpp"
 #include "markcell/rig/render.hpp"
 #include "markcell/rig/scenario.hpp"
 
@@ -76,7 +77,7 @@ void check_real_devices(const CellConfig& c, const ReplayOptions& options) {
 // `pose_log_folder`: where this run's poses.csv and mf_tracks.csv go (empty: none).
 PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
                       control::PredictorKind kind, const ReplayOptions& options, const vision::Recording& rec,
-                      const std::string& pose_log_folder) {
+                      const std::optional<rig::Panel>& panel, const std::string& pose_log_folder) {
   const std::string predictor(control::to_string(kind));
   const bool real = !options.gpio_sim.empty();
   CellConfig cfg = base;
@@ -232,15 +233,10 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   if (!rec.manifest().has_truth || !rec.manifest().has_defects) return run;
   const TruthTrack truth(rec.truth(), source);
   if (truth.empty()) return run;
-  // The rig knows the surface of its own recordings' panels only: any other recording
-  // (another tool's, even of a panel type named `door`) is scored on the aim alone.
-  std::optional<rig::PanelShape> panel;
-  if (rec.manifest().generator == kRigGenerator) {
-    try {
-      panel = rig::panel_shape(rec.manifest().panel_type);
-    } catch (const std::invalid_argument&) {
-    }
-  }
+  // Sprays land on the panel the recording shows: its own mesh (`panel_mesh`), never
+  // another panel's; a recording without one is scored on the aim alone.
+  // (read before the run, in replay_recording).
+  const std::vector<Eigen::Vector3d>& true_mfs = rec.manifest().macro_features_Panel;
   std::vector<TrueDefect> defects;
   for (const auto& d : rec.defects()) defects.push_back({d.id, d.p_Panel});
   auto true_centre = [&](int id, Nanos t) -> std::optional<Eigen::Vector3d> {
@@ -281,12 +277,12 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   // (CamR at that frame) onto where P put them, X_P_CamRref; once per P.
   std::vector<std::pair<Nanos, Eigen::Isometry3d>> placements;
   for (const auto& frame : run.panel_frames) {
-    if (!panel) break;  // no true MFs to place P with: P taken as CamR at its set-up frame
+    if (true_mfs.empty()) break;  // no true MFs to place P with: P taken as CamR at its set-up frame
     std::vector<Eigen::Vector3d> a, b;
-    const std::size_t n = std::min(frame.mfs.size(), panel->macro_features.size());
+    const std::size_t n = std::min(frame.mfs.size(), true_mfs.size());
     for (std::size_t k = 0; k < n; ++k)
       if (frame.mfs[k].found) {
-        a.push_back(truth.at(frame.reference_time) * panel->macro_features[k]);
+        a.push_back(truth.at(frame.reference_time) * true_mfs[k]);
         b.push_back(frame.mfs[k].p_P);
       }
     // Robust: a search can take another corner for an MF (a person in front); the
@@ -401,6 +397,12 @@ ReplayReport replay_recording(const CellConfig& base_config, const std::string& 
   if (job.panel_type.view() != rec.manifest().panel_type)
     throw std::runtime_error(inspection + ": panel_type '" + std::string(job.panel_type.view()) + "' but the recording is of '" +
                              rec.manifest().panel_type + "'");
+  // The panel's surface, read before anything runs: a bad mesh is an error up front.
+  std::optional<rig::Panel> panel;
+  if (!rec.manifest().panel_mesh.empty())
+    panel = rig::load_panel_mesh(rec.manifest().panel_type,
+                                 (std::filesystem::path(rec.folder()) / rec.manifest().panel_mesh).string(),
+                                 rec.manifest().panel_mesh_metres_per_unit);
   ReplayReport report;
   report.scenario = rec.manifest().scenario.empty() ? std::filesystem::path(recording).filename().string() : rec.manifest().scenario;
   report.recording = recording;
@@ -422,7 +424,8 @@ ReplayReport replay_recording(const CellConfig& base_config, const std::string& 
   // The main run's pose log beside its commands.log (vision/RECORDING.md, "The pose log").
   if (!options.out_dir.empty()) std::filesystem::create_directories(options.out_dir);
   for (const auto& k : kinds) {
-    report.runs.push_back(run_once(config, recording, job, k, options, rec, report.runs.empty() ? options.out_dir : std::string()));
+    report.runs.push_back(
+        run_once(config, recording, job, k, options, rec, panel, report.runs.empty() ? options.out_dir : std::string()));
     const PredictorRun& r = report.runs.back();
     if (r.stopped_by != 0) {  // the other predictor's run is not begun
       char at[64];

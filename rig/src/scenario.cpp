@@ -116,9 +116,8 @@ Scenario make_scenario(const std::string& name, std::uint64_t seed) {
   throw std::invalid_argument("unknown scenario '" + name + "' (known: " + known + ")");
 }
 
-vision::PanelTypeModel reference_panel_type(const Scenario& s, const vision::StereoCalibration& marking,
+vision::PanelTypeModel reference_panel_type(const Scenario& s, const rig::Panel& panel, const vision::StereoCalibration& marking,
                                             const rig::RenderSettings& render, cv::Mat* reference_left) {
-  const rig::PanelShape panel = rig::panel_shape(s.panel_type);
   Eigen::Isometry3d X_CamR_Panel = s.path.X_CamR_Line;
   X_CamR_Panel.translation().x() = marking.X_CamR_CamL.translation().x();  // in front of the left camera
   const rig::StereoRenderer renderer(marking, render);
@@ -142,12 +141,13 @@ bool frame_dropped(const Scenario& s, std::uint64_t index) {
   return static_cast<double>(h % 1'000'000) < s.drop_ratio * 1'000'000;
 }
 
-std::size_t generate_recording(const Scenario& s, const std::string& folder, const vision::StereoCalibration& marking,
-                               const vision::StereoCalibration& scanner, const rig::RenderSettings& render,
-                               const GenerateOptions& options) {
+std::size_t generate_recording(const Scenario& s, const rig::Panel& panel, const std::string& folder,
+                               const vision::StereoCalibration& marking, const vision::StereoCalibration& scanner,
+                               const rig::RenderSettings& render, const GenerateOptions& options) {
   if (s.board_only)
     throw std::invalid_argument("scenario '" + s.name + "' has no panel to record: markcell calibrate-base runs it");
-  const rig::PanelShape panel = rig::panel_shape(s.panel_type);
+  if (panel.name != s.panel_type)
+    throw std::invalid_argument("scenario '" + s.name + "' is of a " + s.panel_type + ", not of the panel '" + panel.name + "' given");
   const Nanos duration = options.max_duration > 0 ? std::min(options.max_duration, s.duration) : s.duration;
   const double fps = options.fps > 0 ? options.fps : s.fps;
   const LineMotion motion(s.speed, s.path, s.duration);
@@ -163,6 +163,11 @@ std::size_t generate_recording(const Scenario& s, const std::string& folder, con
   m.seed = s.seed;
   m.scenario = s.name;
   m.generator = std::string(kRigGenerator);
+  // The panel's surface goes with the recording: the replay scores sprays on it.
+  const std::string mesh_ext = std::filesystem::path(panel.mesh_file).extension().string();
+  m.panel_mesh = "panel" + mesh_ext;
+  m.panel_mesh_metres_per_unit = panel.mesh_metres_per_unit;
+  m.macro_features_Panel = panel.macro_features;
   std::size_t written = 0;
   {
     vision::RecordingWriter writer(folder, m);
@@ -195,6 +200,8 @@ std::size_t generate_recording(const Scenario& s, const std::string& folder, con
     writer.set_defects(truth);
   }
   vision::save_stereo_calibration((std::filesystem::path(folder) / "stereo.yaml").string(), marking);
+  std::filesystem::copy_file(panel.mesh_file, std::filesystem::path(folder) / m.panel_mesh,
+                             std::filesystem::copy_options::overwrite_existing);
 
   // The inspection station's record for this panel, as it would send it.
   const InspectionRecord rec =

@@ -7,7 +7,7 @@ namespace markcell::rig {
 
 namespace {
 // `panel` null: scored on the aim.
-Score score(const rig::PanelShape* panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
+Score score(const rig::Panel* panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
             const std::vector<TrueDefect>& defects, const std::vector<Spray>& sprays, const std::vector<SkippedDefect>& skipped,
             double radius) {
   Score score;
@@ -73,7 +73,7 @@ Score score(const rig::PanelShape* panel, const std::function<Eigen::Isometry3d(
 }
 }  // namespace
 
-Score score_sprays(const rig::PanelShape& panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
+Score score_sprays(const rig::Panel& panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
                    const std::vector<TrueDefect>& defects, const std::vector<Spray>& sprays,
                    const std::vector<SkippedDefect>& skipped, double radius) {
   return score(&panel, X_CamR_Panel_at, defects, sprays, skipped, radius);

@@ -211,4 +211,16 @@ std::vector<Eigen::Vector3d> fender_sheet_corners() {
   return out;
 }
 
+rig::Panel sheet_panel(const std::string& name, const SheetSpec& spec, std::vector<Eigen::Vector3d> macro_features) {
+  rig::Panel p;
+  p.name = name;
+  p.surface = std::make_shared<const rig::MeshSurface>(sheet_mesh(spec));
+  p.macro_features = std::move(macro_features);
+  return p;
+}
+
+rig::Panel shipped_panel(const std::string& name) {
+  return rig::load_panel(std::string(MARKCELL_SOURCE_DIR) + "/config/panels/" + name + ".yaml");
+}
+
 }  // namespace markcell::test

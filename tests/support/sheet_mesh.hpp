@@ -12,6 +12,7 @@
 
 #include <Eigen/Core>
 
+#include "markcell/rig/panel.hpp"
 #include "markcell/rig/panel_mesh.hpp"
 
 namespace markcell::test {
@@ -47,5 +48,10 @@ SheetSpec door_sheet();
 SheetSpec fender_sheet();
 std::vector<Eigen::Vector3d> door_sheet_corners();
 std::vector<Eigen::Vector3d> fender_sheet_corners();
+
+// A panel of a sheet made here (its mesh in memory), with `macro_features` as given.
+rig::Panel sheet_panel(const std::string& name, const SheetSpec& spec, std::vector<Eigen::Vector3d> macro_features);
+// The shipped panel type `name`: config/panels/NAME.yaml and its mesh.
+rig::Panel shipped_panel(const std::string& name);
 
 }  // namespace markcell::test

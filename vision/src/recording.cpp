@@ -3,6 +3,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "markcell/common/bounded_file.hpp"
+#include "markcell/common/confined_path.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -42,20 +43,9 @@ std::string read_table(const fs::path& path, std::string_view what) {
   }
 }
 
-// A path from the index, confined to the recording folder: relative, no "..", and,
-// resolved through any symbolic links, still inside it. "" when fine, else why not.
+// A path from the index or the manifest, confined to the recording folder.
 std::string confined_problem(const fs::path& folder, const std::string& rel) {
-  const fs::path p(rel);
-  if (p.is_absolute()) return "is an absolute path (image paths are relative to the recording folder)";
-  for (const auto& part : p)
-    if (part == "..") return "leaves the recording folder (..)";
-  std::error_code ec;
-  const fs::path root = fs::weakly_canonical(folder, ec);
-  const fs::path full = fs::weakly_canonical(folder / p, ec);
-  if (ec) return "cannot be resolved";
-  const auto mismatch = std::mismatch(root.begin(), root.end(), full.begin(), full.end());
-  if (mismatch.first != root.end()) return "leads out of the recording folder (through a symbolic link)";
-  return "";
+  return markcell::confined_problem(folder, rel, "the recording folder", "image paths are relative to the recording folder");
 }
 
 // The PNG header (signature and IHDR), read before anything is decoded: a file
@@ -204,6 +194,16 @@ void RecordingWriter::close() {
   if (manifest_.seed) y << YAML::Key << "seed" << YAML::Value << *manifest_.seed;
   if (!manifest_.scenario.empty()) y << YAML::Key << "scenario" << YAML::Value << manifest_.scenario;
   if (!manifest_.generator.empty()) y << YAML::Key << "generator" << YAML::Value << manifest_.generator;
+  if (!manifest_.panel_mesh.empty()) {
+    y << YAML::Key << "panel_mesh" << YAML::Value << manifest_.panel_mesh;
+    y << YAML::Key << "panel_mesh_metres_per_unit" << YAML::Value << manifest_.panel_mesh_metres_per_unit;
+  }
+  if (!manifest_.macro_features_Panel.empty()) {
+    y << YAML::Key << "macro_features_panel" << YAML::Value << YAML::BeginSeq;
+    for (const auto& p : manifest_.macro_features_Panel)
+      y << YAML::Flow << YAML::BeginSeq << p.x() << p.y() << p.z() << YAML::EndSeq;
+    y << YAML::EndSeq;
+  }
   y << YAML::EndMap;
   std::ofstream(dir / "recording.yaml") << y.c_str() << '\n';
 }
@@ -245,6 +245,23 @@ Recording Recording::open(const std::string& folder) {
     if (m["seed"].IsDefined()) r.manifest_.seed = m["seed"].as<std::uint64_t>();
     if (m["scenario"].IsDefined()) r.manifest_.scenario = m["scenario"].as<std::string>();
     if (m["generator"].IsDefined()) r.manifest_.generator = m["generator"].as<std::string>();
+    if (m["panel_mesh"].IsDefined()) r.manifest_.panel_mesh = need("panel_mesh").as<std::string>();
+    if (m["panel_mesh_metres_per_unit"].IsDefined())
+      r.manifest_.panel_mesh_metres_per_unit = need("panel_mesh_metres_per_unit").as<double>();
+    if (const YAML::Node mfs = m["macro_features_panel"]; mfs.IsDefined()) {
+      if (!mfs.IsSequence() || mfs.size() > 64)
+        throw RecordingError(manifest_path + ": key 'macro_features_panel': expected a list of at most 64 [x, y, z] in metres");
+      for (std::size_t i = 0; i < mfs.size(); ++i) {
+        const YAML::Node p = mfs[i];
+        if (!p.IsSequence() || p.size() != 3)
+          throw RecordingError(manifest_path + ": key 'macro_features_panel': entry " + std::to_string(i + 1) + " is not [x, y, z]");
+        const Eigen::Vector3d v(p[0].as<double>(), p[1].as<double>(), p[2].as<double>());
+        if (!v.allFinite() || v.norm() > 20)
+          throw RecordingError(manifest_path + ": key 'macro_features_panel': entry " + std::to_string(i + 1) +
+                               " is not a finite point within 20 m (units are metres)");
+        r.manifest_.macro_features_Panel.push_back(v);
+      }
+    }
   } catch (const YAML::BadConversion& e) {
     throw RecordingError(manifest_path + ": line " + std::to_string(e.mark.line + 1) + ": wrong type of value");
   }
@@ -259,6 +276,13 @@ Recording Recording::open(const std::string& folder) {
                          "], got " + std::to_string(r.manifest_.image_width) + "x" + std::to_string(r.manifest_.image_height));
   if (const std::string why = confined_problem(dir, r.manifest_.calibration); !why.empty())
     throw RecordingError(manifest_path + ": key 'calibration': '" + r.manifest_.calibration + "' " + why);
+  if (!r.manifest_.panel_mesh.empty())
+    if (const std::string why = confined_problem(dir, r.manifest_.panel_mesh); !why.empty())
+      throw RecordingError(manifest_path + ": key 'panel_mesh': '" + r.manifest_.panel_mesh + "' " + why);
+  if (!std::isfinite(r.manifest_.panel_mesh_metres_per_unit) || !(r.manifest_.panel_mesh_metres_per_unit > 0) ||
+      r.manifest_.panel_mesh_metres_per_unit > 1000)
+    throw RecordingError(manifest_path + ": key 'panel_mesh_metres_per_unit': must be a number in (0, 1000], got " +
+                         need("panel_mesh_metres_per_unit").Scalar());
 
   const std::string index_path = (dir / "frames.csv").string();
   if (!fs::exists(index_path)) throw RecordingError(index_path + ": missing");

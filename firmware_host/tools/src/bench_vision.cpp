@@ -14,6 +14,7 @@
 #include "markcell/rig/line_motion.hpp"
 #include "markcell/rig/scenario.hpp"
 #include "markcell/vision/panel_tracker.hpp"
+#include "markcell/rig/panel.hpp"
 #include "markcell/rig/render.hpp"
 
 namespace markcell::host {
@@ -30,7 +31,7 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
   cv::setNumThreads(1);  // one core for both: OpenCV would otherwise spread over the machine
   const auto calibration = vision::load_stereo_calibration(config.calibration.stereo);
   const rig::Scenario scenario = rig::make_scenario(options.scenario, 1);
-  const rig::PanelShape panel = rig::panel_shape(scenario.panel_type);
+  const rig::Panel panel = rig::configured_panel(config.panel_types, scenario.panel_type);
   const rig::LineMotion motion(scenario.speed, scenario.path, scenario.duration);
   const rig::StereoRenderer renderer(calibration, rig::RenderSettings{});
   const vision::StereoRig rig(calibration);

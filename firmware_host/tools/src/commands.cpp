@@ -11,6 +11,7 @@
 
 #include "markcell/host/service_loop.hpp"
 #include "markcell/rig/render.hpp"
+#include "markcell/rig/panel.hpp"
 #include "markcell/rig/scenario.hpp"
 #include "markcell/tools/base_calibration_run.hpp"
 #include "markcell/tools/bench.hpp"
@@ -73,7 +74,8 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     const auto s = rig::make_scenario(scenario, 1);
     const auto cal = vision::load_stereo_calibration("config/calibration/marking_stereo.yaml");
     cv::Mat reference;
-    model = rig::reference_panel_type(s, cal, rig::RenderSettings{}, &reference);
+    const rig::Panel shipped = rig::load_panel("config/panels/" + s.panel_type + ".yaml");
+    model = rig::reference_panel_type(s, shipped, cal, rig::RenderSettings{}, &reference);
     if (!image.empty()) cv::imwrite(image, reference);
   } else {
     const cv::Mat img = cv::imread(image, cv::IMREAD_GRAYSCALE);

@@ -42,7 +42,7 @@ struct DefectSpec {
   double x = 0, y = 0;  // centre on the panel surface, panel frame, m
 };
 
-InspectionRecord simulate_inspection(const std::string& panel_id, const rig::PanelShape& panel,
+InspectionRecord simulate_inspection(const std::string& panel_id, const rig::Panel& panel,
                                      const std::vector<DefectSpec>& defects, const vision::StereoCalibration& scanner,
                                      const Eigen::Isometry3d& X_SL_Panel, const InspectionNoise& noise, std::uint64_t seed);
 

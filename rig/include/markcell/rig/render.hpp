@@ -1,16 +1,11 @@
 #pragma once
 // Synthetic views of the marking station's stereo pair: the rig's cameras.
 //
-// A panel is a gently bent sheet (z = -bend * x^2 in the panel frame) with an outer
-// rectangle, rectangular cut-outs (a door's window opening, a handle recess) and round
-// holes, painted uniform grey e-coat with mild shading and a faint fixed texture, in
-// front of a plain background. Each pixel is ray-cast through the camera model
-// (distortion included) at 8 samples (an n-rooks pattern), then blurred, scaled by the
-// exposure and given sensor noise from a seeded generator: the same seed gives the same
-// image.
-//
-// The panel frame: origin at the panel's centre, x along its width (the direction of
-// travel), y along its height (up), z out of the surface towards the cameras.
+// A panel is its mesh (panel.hpp), painted uniform grey e-coat with mild shading and a
+// faint fixed texture, in front of a plain background. Each pixel is ray-cast through
+// the camera model (distortion included) at 8 samples (an n-rooks pattern), then
+// blurred, scaled by the exposure and given sensor noise from a seeded generator: the
+// same seed gives the same image.
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -18,40 +13,10 @@
 #include <Eigen/Geometry>
 #include <opencv2/core.hpp>
 
+#include "markcell/rig/panel.hpp"
 #include "markcell/vision/calibration_io.hpp"
 
 namespace markcell::rig {
-
-struct PanelShape {
-  struct Rect {
-    double x0, y0, x1, y1;  // panel frame, metres, x0 < x1, y0 < y1
-  };
-  struct Hole {
-    double x, y, radius;
-  };
-  std::string name;
-  double width = 1.0, height = 0.7;  // outer rectangle, centred on the origin
-  double bend = 0.0;                 // 1/m: z = -bend * x^2
-  std::vector<Rect> cutouts;
-  std::vector<Hole> holes;
-  // The macro-features: corners the installation engineer would pick, on the surface.
-  std::vector<Eigen::Vector3d> macro_features;
-
-  double surface_z(double x) const { return -bend * x * x; }
-  Eigen::Vector3d surface_point(double x, double y) const { return {x, y, surface_z(x)}; }
-  Eigen::Vector3d normal(double x) const { return Eigen::Vector3d(2.0 * bend * x, 0.0, 1.0).normalized(); }
-  // True when (x, y) is panel material (inside the outline, outside cut-outs and holes).
-  bool solid(double x, double y) const;
-};
-
-// Where the ray o + t d (panel frame, t > 0) first meets the panel's surface, if it meets
-// panel material: the distance t, or a negative value. `d` need not be unit length.
-double intersect_panel(const PanelShape& panel, const Eigen::Vector3d& o_Panel, const Eigen::Vector3d& d_Panel);
-
-// The paper's two panels, with 10 macro-features each.
-PanelShape door_shape();
-PanelShape fender_shape();
-PanelShape panel_shape(const std::string& name);  // "door" or "fender"; throws otherwise
 
 // A round obstacle between the cameras and the panel (the robot arm's links, a person):
 // a capsule from a to b with the given radius, in the right camera's frame.
@@ -80,7 +45,7 @@ class StereoRenderer {
   const vision::StereoCalibration& cameras() const { return cameras_; }
   // Renders both views of `panel` at X_CamR_Panel. `exposure` scales the light (1 =
   // nominal); `seed` makes the noise of this frame.
-  void render(const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,
+  void render(const Panel& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,
               const std::vector<Occluder>& occluders, cv::Mat& left, cv::Mat& right) const;
   // A flat chessboard (calibration target): `cols` x `rows` inner corners, squares of
   // `square` metres, one white square of margin; its frame has the first inner corner
@@ -100,7 +65,7 @@ class StereoRenderer {
   void cast(int camera, const Eigen::Isometry3d& X_CamR_Object, std::uint64_t seed, double exposure, Shade&& shade,
             cv::Mat& out) const;
   void paint_view(int camera, const Occluder* occluders, std::size_t count, cv::Mat& image) const noexcept;
-  void render_view(int camera, const PanelShape& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
+  void render_view(int camera, const Panel& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure,
                    std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const;
   vision::StereoCalibration cameras_;
   RenderSettings settings_;

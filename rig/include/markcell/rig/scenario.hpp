@@ -77,16 +77,18 @@ struct GenerationStopped : std::runtime_error {
   int signal = 0;
 };
 
-// Writes the scenario to `folder` as a recording: frames (those not dropped), truth,
-// defects, the stereo calibration used, and inspection.yaml. Returns the frames written.
-std::size_t generate_recording(const Scenario& scenario, const std::string& folder,
+// Writes the scenario to `folder` as a recording of `panel` (the scenario's panel type,
+// load_panel): frames (those not dropped), truth, defects, the stereo calibration used,
+// the panel's mesh, and inspection.yaml. Returns the frames written.
+std::size_t generate_recording(const Scenario& scenario, const rig::Panel& panel, const std::string& folder,
                                const vision::StereoCalibration& marking, const vision::StereoCalibration& scanner,
                                const rig::RenderSettings& render, const GenerateOptions& options = {});
 
 // The panel type's file as the installation engineer would make it with select-mfs: the
 // panel rendered square to the left camera, its MFs where the camera model projects
 // them (then snapped to the corner, as the tool does). Also returns the reference image.
-vision::PanelTypeModel reference_panel_type(const Scenario& scenario, const vision::StereoCalibration& marking,
+vision::PanelTypeModel reference_panel_type(const Scenario& scenario, const rig::Panel& panel,
+                                            const vision::StereoCalibration& marking,
                                             const rig::RenderSettings& render, cv::Mat* reference_left = nullptr);
 
 // Whether frame `index` of the scenario is lost (deterministic from its seed).

@@ -70,7 +70,7 @@ struct Score {
   double error_rms = 0;
 };
 
-Score score_sprays(const rig::PanelShape& panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
+Score score_sprays(const rig::Panel& panel, const std::function<Eigen::Isometry3d(Nanos)>& X_CamR_Panel_at,
                    const std::vector<TrueDefect>& defects, const std::vector<Spray>& sprays,
                    const std::vector<SkippedDefect>& skipped, double radius);
 // The same on the aim alone (ScoredOn::kAim): no surface.

@@ -36,6 +36,15 @@ struct RecordingManifest {
   // The program that made it, when it says (`markcell sim` for the rig's own): the replay
   // draws its simulated arm only into the rig's own recordings.
   std::string generator;
+  // The panel's surface as a triangle mesh (STL, OBJ, PLY; relative to the recording
+  // folder, inside it), in the panel frame of truth.csv, and its unit: the rig scores
+  // sprays on it. Empty: no surface known, sprays are scored on the aim alone.
+  std::string panel_mesh;
+  double panel_mesh_metres_per_unit = 1.0;
+  // The macro-features' true positions in the panel frame (metres), in the panel type's
+  // order, when the recording's maker knows them: the report places each panel frame P
+  // with them. At most 64.
+  std::vector<Eigen::Vector3d> macro_features_Panel;
 };
 
 struct IndexEntry {

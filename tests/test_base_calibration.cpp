@@ -114,7 +114,7 @@ TEST_CASE("calibrate-base on the rig's calibration-board scenario: the truth rec
   const auto stereo = vision::load_stereo_calibration(config.calibration.stereo);
   const vision::StereoRig rig(stereo);
   const Eigen::Isometry3d nominal = vision::load_pose(config.calibration.base, "X_Base_CamR");
-  const auto scenario = rig::make_scenario("calibration-board", 3);
+  const auto scenario = rig::find_scenario("calibration-board", markcell::test::source_path("config/scenarios"), 3);
   const Eigen::Isometry3d truth = nominal * scenario.X_CamRnominal_CamR;
   // The scenario moves the camera far enough that keeping the nominal would be wrong.
   REQUIRE(host::translation_error(nominal, truth) > 0.005);

@@ -135,7 +135,39 @@ TEST_CASE("sim and replay: an unknown scenario and a folder without a recording 
   markcell::test::TempDir dir;
   const auto unknown = run_command("cd " + source_path("") + " && " + kMarkcell + " sim paper-dor --out " + dir.path().string());
   CHECK(unknown.exit_code == 2);
-  CHECK(unknown.output.find("unknown scenario 'paper-dor' (known: paper-door, paper-fender") != std::string::npos);
+  CHECK(unknown.output.find("unknown scenario 'paper-dor': no config/scenarios/paper-dor.yaml (known: calibration-board, "
+                            "frame-drops, line-fast, nine-defects, occlusion-person, paper-curved, paper-door, "
+                            "paper-fender)") != std::string::npos);
+  // A scenario file of one's own, by its path: its name is the file's stem, its defects
+  // are its own; an error in it names the file, the line and the key, and nothing runs.
+  std::string door = markcell::test::read_file(source_path("config/scenarios/paper-door.yaml"));
+  const std::string three = "  - {id: 3, x: 0.38, y: -0.25, radius: 0.012}\n";
+  REQUIRE(door.find(three) != std::string::npos);
+  door.erase(door.find(three), three.size());
+  const std::string mine = dir.write("two-dings.yaml", door);
+  const auto ran = run_command("cd " + source_path("") + " && " + kMarkcell + " sim " + mine +
+                               " --seconds 1 --fps 5 --one-predictor -q --out " + (dir.path() / "mine").string());
+  INFO(ran.output);
+  REQUIRE(ran.exit_code == 0);
+  const std::string report = markcell::test::read_file((dir.path() / "mine" / "report.json").string());
+  CHECK(report.find("\"scenario\": \"two-dings\"") != std::string::npos);
+  const std::string truth = markcell::test::read_file((dir.path() / "mine" / "recording" / "truth.csv").string());
+  CHECK(truth.size() > 0);
+  door.replace(door.find("fps: 30"), 7, "fps: 30\nfsp: 30");
+  const std::string bad = dir.write("bad.yaml", door);
+  const auto refused = run_command("cd " + source_path("") + " && " + kMarkcell + " sim " + bad + " --out " +
+                                   (dir.path() / "bad").string());
+  CHECK(refused.exit_code == 2);
+  CHECK(refused.output.find(bad + ":7: fsp: unknown key (known: kind, panel_type") != std::string::npos);
+  CHECK_FALSE(std::filesystem::exists(dir.path() / "bad"));
+  std::string off = markcell::test::read_file(source_path("config/scenarios/paper-door.yaml"));
+  off.replace(off.find("x: 0.12,"), 8, "x: 3.0,");
+  const std::string off_file = dir.write("off-panel.yaml", off);
+  const auto off_panel = run_command("cd " + source_path("") + " && " + kMarkcell + " sim " + off_file + " --out " +
+                                     (dir.path() / "off").string());
+  CHECK(off_panel.exit_code == 2);
+  CHECK(off_panel.output.find(off_file + ": defects[0] (id 1) at x 3.000000 m, y -0.120000 m is not on the door's "
+                              "surface") != std::string::npos);
   const auto empty = run_command("cd " + source_path("") + " && " + kMarkcell + " replay " + dir.path().string() +
                                  " --out " + (dir.path() / "out").string());
   INFO(empty.output);

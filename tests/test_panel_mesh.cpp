@@ -117,6 +117,33 @@ TEST_CASE("rays on a bent sheet's mesh meet it where the closed form does, to th
   CHECK_FALSE(surface.from_front(0.6, 0.0).hit());     // beside the panel
 }
 
+TEST_CASE("a fan of rays traced as packets meets the mesh where the same rays traced one by one do") {
+  const test::SheetSpec s = test::fender_sheet();
+  const rig::MeshSurface surface(test::sheet_mesh(s));
+  // A camera's fan: one origin, 1000 directions over the sheet and past its edges and
+  // holes, not all of unit length, one of them zero (no hit, no crash).
+  const Eigen::Vector3d o(0.05, -0.02, 2.5);
+  std::vector<Eigen::Vector3d> d;
+  for (int i = 0; i < 40; ++i)
+    for (int j = 0; j < 25; ++j) d.push_back((Eigen::Vector3d(-0.6 + 0.03 * i, -0.4 + 0.032 * j, -0.05) - o) * (1 + i % 3) / 2.0);
+  d[7] = Eigen::Vector3d::Zero();
+  std::vector<rig::MeshHit> fan(d.size());
+  surface.intersect(o, d.data(), d.size(), fan.data());
+  int hits = 0;
+  for (std::size_t i = 0; i < d.size(); ++i) {
+    const rig::MeshHit one = surface.intersect(o, d[i]);
+    CAPTURE(i);
+    REQUIRE(fan[i].hit() == one.hit());
+    if (!one.hit()) continue;
+    ++hits;
+    CHECK((fan[i].p - one.p).norm() < 1e-9);
+    CHECK(fan[i].t == Approx(one.t).epsilon(1e-12));
+  }
+  CHECK_FALSE(fan[7].hit());
+  CHECK(hits > 400);  // half the fan is on the sheet (500 rays)
+  CHECK(hits < 990);
+}
+
 TEST_CASE("mesh files: PLY round trip, STL and OBJ in millimetres, and each bad file named with what is wrong") {
   test::TempDir dir;
   const rig::TriangleMesh door = test::sheet_mesh(test::door_sheet());
@@ -205,6 +232,15 @@ TEST_CASE("mesh files: PLY round trip, STL and OBJ in millimetres, and each bad 
                                                           "property list uchar int vertex_indices\nend_header\n"
                                                           "0 0 0\n1 0 0\n1 1 0\n3 0 1 3\n");
   CHECK(error_of([&] { rig::load_mesh(face_beyond, 1.0); }) == face_beyond + ": face 0 names vertex 3.000000 of 3");
+  // Counts that would loop without reading a byte (an element with no properties) or
+  // wrap the header's sums are refused in the header; so is a vertex without z.
+  const std::string endless = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                              "property float z\nelement edge 18446744073709551615\nend_header\n0 0 0\n1 0 0\n1 1 0\n";
+  CHECK(error_of([&] { rig::parse_ply("endless.ply", endless, 1.0); }) ==
+        "endless.ply: PLY header line 7: 18446744073709551615 edge entries, more than 12000000");
+  const std::string flat = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                           "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0\n1 0\n1 1\n3 0 1 2\n";
+  CHECK(error_of([&] { rig::parse_ply("flat.ply", flat, 1.0); }) == "flat.ply: PLY vertex element without a scalar property 'z'");
   {
     std::string stl_bin(80, ' ');
     const std::uint32_t n = 2;

@@ -1,5 +1,6 @@
 // The rig's line motion and its scoring, against closed-form answers.
 #include <catch2/catch.hpp>
+#include <sys/stat.h>
 #include <cmath>
 
 #include "markcell/rig/line_motion.hpp"
@@ -228,7 +229,7 @@ TEST_CASE("the inspection station's record: macro-features as its scanner triang
   // The panel 2 m in front of the scanner, between its cameras, a little turned.
   Eigen::Isometry3d X_SL_Panel = facing(0.15, 0.02, 2.0);
   X_SL_Panel.linear() = X_SL_Panel.linear() * Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  const std::vector<DefectSpec> defects = {{1, 0.1, -0.1}, {2, -0.25, -0.2}, {3, 0.35, 0.25}};
+  const std::vector<DefectSpec> defects = {{1, 0.1, -0.1, 0.012}, {2, -0.25, -0.2, 0.025}, {3, 0.35, 0.25, 0.006}};
   for (std::size_t i = 0; i < door.macro_features.size(); ++i) {  // the scanner sees every macro-feature
     const Eigen::Vector3d p = X_SL_Panel * door.macro_features[i];
     const Eigen::Vector2d xl = markcell::rig::project_point(scanner.left, p);
@@ -245,13 +246,16 @@ TEST_CASE("the inspection station's record: macro-features as its scanner triang
   REQUIRE(exact.defects.size() == 3);
   for (std::size_t d = 0; d < 3; ++d) {
     REQUIRE(exact.defects[d].points_SL.size() == 60);
+    double widest = 0;
     for (const auto& p_SL : exact.defects[d].points_SL) {
       const Eigen::Vector3d p = X_SL_Panel.inverse() * p_SL;
-      CHECK(std::hypot(p.x() - defects[d].x, p.y() - defects[d].y) <= none.ding_radius + 1e-6);  // within the ding (plus its slope)
+      widest = std::max(widest, std::hypot(p.x() - defects[d].x, p.y() - defects[d].y));
+      CHECK(std::hypot(p.x() - defects[d].x, p.y() - defects[d].y) <= defects[d].radius + 1e-6);  // within the ding (plus its slope)
       const double below = markcell::test::door_sheet().z(p.x(), p.y()) - p.z();  // pressed in, never out
       CHECK(below >= -5e-6);  // the mesh's chord below the sheet
       CHECK(below <= none.ding_depth + 1e-6);
     }
+    CHECK(widest > 0.7 * defects[d].radius);  // each ding as wide as its own radius
   }
 
   // With the scanner's noise, and the marking station seeing the same panel: fitting the
@@ -277,9 +281,22 @@ TEST_CASE("the inspection station's record: macro-features as its scanner triang
 #include "markcell/rig/scenario.hpp"
 #include "markcell/vision/recording.hpp"
 
-TEST_CASE("scenarios: every name is known, unknown names are listed, drops are deterministic") {
-  for (const auto& name : scenario_names()) {
-    const Scenario s = make_scenario(name, 3);
+namespace {
+const std::string& shipped_scenarios() {
+  static const std::string folder = markcell::test::source_path("config/scenarios");
+  return folder;
+}
+Scenario shipped_scenario(const std::string& name, std::uint64_t seed) {
+  return find_scenario(name, shipped_scenarios(), seed);
+}
+}  // namespace
+
+TEST_CASE("scenarios: every shipped file loads, unknown names are listed, drops are deterministic") {
+  const std::vector<std::string> names = scenario_names(shipped_scenarios());
+  CHECK(names == std::vector<std::string>{"calibration-board", "frame-drops", "line-fast", "nine-defects",
+                                          "occlusion-person", "paper-curved", "paper-door", "paper-fender"});
+  for (const auto& name : names) {
+    const Scenario s = shipped_scenario(name, 3);
     CHECK(s.name == name);
     if (s.board_only) {  // calibration-board: a camera pose to find, no panel
       CHECK(s.defects.empty());
@@ -290,18 +307,83 @@ TEST_CASE("scenarios: every name is known, unknown names are listed, drops are d
     const markcell::rig::Panel panel = markcell::test::shipped_panel(s.panel_type);
     for (const auto& d : s.defects) CHECK(panel.solid(d.x, d.y));
   }
-  CHECK(make_scenario("nine-defects", 1).defects.size() == 9);
-  CHECK(make_scenario("paper-fender", 1).defects.size() == 4);
-  CHECK_THROWS_WITH(make_scenario("paper-dor", 1),
-                    "unknown scenario 'paper-dor' (known: paper-door, paper-fender, paper-curved, line-fast, "
-                    "occlusion-person, frame-drops, nine-defects, calibration-board)");
-  const Scenario drops = make_scenario("frame-drops", 11);
+  CHECK(shipped_scenario("nine-defects", 1).defects.size() == 9);
+  CHECK(shipped_scenario("paper-fender", 1).defects.size() == 4);
+  CHECK_THROWS_WITH(shipped_scenario("paper-dor", 1),
+                    "unknown scenario 'paper-dor': no " + shipped_scenarios() +
+                        "/paper-dor.yaml (known: calibration-board, frame-drops, line-fast, nine-defects, "
+                        "occlusion-person, paper-curved, paper-door, paper-fender)");
+  const Scenario drops = shipped_scenario("frame-drops", 11);
   int dropped = 0;
   for (std::uint64_t i = 0; i < 20'000; ++i) dropped += frame_dropped(drops, i) ? 1 : 0;
   CHECK(dropped > 20'000 * 0.085 + 15);
   CHECK(dropped < 20'000 * 0.115 + 15);
   for (std::uint64_t i = 45; i < 60; ++i) CHECK(frame_dropped(drops, i));
-  CHECK_FALSE(frame_dropped(make_scenario("paper-door", 11), 45));
+  CHECK_FALSE(frame_dropped(shipped_scenario("paper-door", 11), 45));
+}
+
+TEST_CASE("a scenario file with an error is refused naming its file, line and key") {
+  markcell::test::TempDir dir;
+  const std::string door = markcell::test::read_file(shipped_scenarios() + "/paper-door.yaml");
+  // Each case: the shipped door with one line replaced, the message expected.
+  const auto edited = [&](const std::string& from, const std::string& to) {
+    const std::size_t at = door.find(from);
+    REQUIRE(at != std::string::npos);
+    std::string text = door;
+    text.replace(at, from.size(), to);
+    return dir.write("edited.yaml", text);
+  };
+  const auto line_of = [&](const std::string& what) {
+    const std::size_t at = door.find(what);
+    REQUIRE(at != std::string::npos);
+    return std::to_string(1 + std::count(door.begin(), door.begin() + static_cast<std::ptrdiff_t>(at), '\n'));
+  };
+  const std::string file = (dir.path() / "edited.yaml").string();
+  SECTION("an unknown key") {
+    const std::string line = line_of("exposure_drift:");
+    CHECK_THROWS_WITH(load_scenario(edited("exposure_drift:", "exposure_drfit:")),
+                      file + ":" + line + ": exposure_drfit: unknown key (known: kind, panel_type, seed, duration_s, "
+                                          "fps, speed, line, defects, people, frame_drops, exposure_drift, inspection, "
+                                          "plc_script)");
+  }
+  SECTION("a rotation that is not one") {
+    const std::string line = line_of("rotation: [[1, 0, 0]");
+    CHECK_THROWS_WITH(load_scenario(edited("[0, -1, 0], [0, 0, -1]]", "[0, -1, 0], [0, 0, 1]]")),
+                      Catch::StartsWith(file + ":" + line + ": line.X_CamR_Line.rotation: is not a rotation"));
+  }
+  SECTION("a defect id used twice") {
+    const std::string line = line_of("{id: 2,");
+    CHECK_THROWS_WITH(load_scenario(edited("{id: 2,", "{id: 1,")),
+                      file + ":" + line + ": defects[1].id: id 1 is used twice");
+  }
+  SECTION("a number out of its range") {
+    const std::string line = line_of("fps: 30");
+    CHECK_THROWS_WITH(load_scenario(edited("fps: 30", "fps: -30")),
+                      Catch::StartsWith(file + ":" + line + ": fps: -30.000000 is outside ["));
+  }
+  SECTION("a PLC script outside the scenario's folder") {
+    const std::string line = line_of("exposure_drift:");
+    CHECK_THROWS_WITH(load_scenario(edited("exposure_drift:", "plc_script: ../../etc/passwd\nexposure_drift:")),
+                      file + ":" + line + ": plc_script: '../../etc/passwd' leaves the scenario file's folder (..)");
+  }
+  SECTION("not YAML") {
+    CHECK_THROWS_WITH(load_scenario(edited("defects:", "defects: [")), Catch::StartsWith(file + ":"));
+  }
+  SECTION("a FIFO is not read") {
+    const std::string fifo = (dir.path() / "fifo.yaml").string();
+    REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);
+    CHECK_THROWS_WITH(load_scenario(fifo), fifo + ": a FIFO, not read (a scenario file must be a regular file)");
+  }
+  SECTION("a file the shipped folder does not have is found by its path, with its PLC script beside it") {
+    dir.write("go.plc", "0.5 ready 1\n");
+    const std::string written = edited("exposure_drift:", "plc_script: go.plc\nexposure_drift:");
+    const Scenario s = find_scenario(written, shipped_scenarios(), 4);
+    CHECK(s.name == "edited");
+    CHECK(s.seed == 4);
+    CHECK(s.plc_script == (dir.path() / "go.plc").string());
+    CHECK(s.defects.size() == 3);
+    CHECK(s.defects[2].radius == 0.012);
+  }
 }
 
 TEST_CASE("a scenario generates the same recording twice, with its truth and the inspection record") {
@@ -309,7 +391,7 @@ TEST_CASE("a scenario generates the same recording twice, with its truth and the
   const auto marking = v::load_stereo_calibration(markcell::test::source_path("config/calibration/marking_stereo.yaml"));
   const auto scanner = v::load_stereo_calibration(markcell::test::source_path("config/calibration/inspection_stereo.yaml"));
   markcell::test::TempDir dir;
-  const Scenario s = make_scenario("paper-door", 21);
+  const Scenario s = shipped_scenario("paper-door", 21);
   GenerateOptions o;
   o.max_duration = seconds(1);
   o.fps = 5;

@@ -14,7 +14,7 @@ dpkg-deb -c "$deb" | awk '{print $6}' | sed 's|^\./|/|' > "$work/files"
 fail=0
 for f in /usr/bin/markcell /usr/lib/systemd/system/markcell.service /etc/markcell/cell.yaml \
          /etc/markcell/calibration/marking_stereo.yaml /etc/markcell/calibration/base.yaml \
-         /etc/markcell/panels/door.yaml /usr/share/markcell/markcell_arm.dbc \
+         /etc/markcell/panels/door.yaml /etc/markcell/scenarios/paper-door.yaml /usr/share/markcell/markcell_arm.dbc \
          /usr/share/doc/markcell/vision/RECORDING.md /usr/share/doc/markcell/README.md \
          /usr/share/doc/markcell/docs/configuration.md /usr/share/doc/markcell/docs/safety.md; do
   grep -qx "$f" "$work/files" || { echo "missing from the package: $f"; fail=1; }

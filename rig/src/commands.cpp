@@ -33,19 +33,26 @@ int replay_command(const CellConfig& config, const std::string& recording, const
   return 0;
 }
 
-int sim_command(const CellConfig& config, const std::string& scenario_name, std::uint64_t seed, double seconds_limit,
-                double fps, const std::string& scanner_file, const std::string& out, const rig::ReplayOptions& options,
+int sim_command(const CellConfig& config, const std::string& scenario_name, bool seed_given, std::uint64_t seed, double seconds_limit,
+                double fps, const std::string& scanner_file, const std::string& out, const rig::ReplayOptions& base,
                 const BoardCalibration& calibrate_board) {
   rig::Scenario scenario;
+  rig::ReplayOptions options = base;
+  std::string scenario_path;
   try {
-    scenario = rig::make_scenario(scenario_name, seed);
-  } catch (const std::invalid_argument& e) {
-    std::cerr << "markcell sim: " << e.what() << "\n";
+    // A name is a shipped scenario (scenarios/ beside the configuration), a path a file.
+    scenario_path = rig::scenario_file(scenario_name, rig::scenario_folder(config.file));
+    scenario = rig::load_scenario(scenario_path);
+    if (seed_given) scenario = rig::with_seed(scenario, seed);
+    // The scenario's PLC script, unless --plc-script gave one.
+    if (!scenario.plc_script.empty() && !options.plc_script_given) options.plc_events = sim::load_plc_script(scenario.plc_script);
+  } catch (const std::exception& e) {
+    std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
     return kExitConfig;
   }
   if (scenario.board_only) {
     const auto o = std::filesystem::path(out);
-    return calibrate_board(config, (o / "base.yaml").string(), seed, (o / "board").string(), out);
+    return calibrate_board(config, (o / "base.yaml").string(), scenario.seed, (o / "board").string(), out);
   }
   const std::filesystem::path recording = std::filesystem::path(out) / "recording";
   // The folder is the rig's own output: a previous run's recording is replaced.
@@ -55,6 +62,15 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, std:
   rig::Panel panel;
   try {
     panel = rig::configured_panel(config.panel_types, scenario.panel_type);
+    // A defect must lie on the panel's skin: off it, nothing would be there to mark and
+    // the score would count a miss the cell could not help.
+    for (std::size_t i = 0; i < scenario.defects.size(); ++i) {
+      const rig::DefectSpec& d = scenario.defects[i];
+      if (!panel.solid(d.x, d.y))
+        throw std::invalid_argument(scenario_path + ": defects[" + std::to_string(i) + "] (id " + std::to_string(d.id) +
+                                    ") at x " + std::to_string(d.x) + " m, y " + std::to_string(d.y) +
+                                    " m is not on the " + panel.name + "'s surface");
+    }
   } catch (const std::exception& e) {
     std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
     return kExitConfig;
@@ -65,8 +81,10 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, std:
   g.stop = options.stop;
   if (options.progress) std::cerr << "markcell sim: rendering " << scenario_name << " into " << recording.string() << "\n";
   std::size_t frames = 0;
+  rig::RenderSettings render;
+  render.threads = 2;  // the two views side by side: the images are the same as on one thread
   try {
-    frames = rig::generate_recording(scenario, panel, recording.string(), marking, scanner, rig::RenderSettings{}, g);
+    frames = rig::generate_recording(scenario, panel, recording.string(), marking, scanner, render, g);
   } catch (const rig::GenerationStopped& e) {
     std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
     return 128 + e.signal;
@@ -87,9 +105,11 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
   };
   const auto o = std::make_shared<Options>();
   auto* sim = app.add_subcommand("sim", "Generate a rig scenario and replay it through the cell in simulated time; score and report it");
-  sim->add_option("SCENARIO", o->sim_scenario, "Scenario: paper-door, paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
+  sim->add_option("SCENARIO", o->sim_scenario,
+                  "A scenario file (FILE.yaml), or the name of one in scenarios/ beside the configuration: paper-door, "
+                  "paper-fender, paper-curved, line-fast, occlusion-person, frame-drops, nine-defects, calibration-board")
       ->required();
-  sim->add_option("--seed", o->sim_seed, "Scenario seed (noise, speed fluctuation, drops)");
+  auto* seed_option = sim->add_option("--seed", o->sim_seed, "Scenario seed (noise, speed fluctuation, drops; default: the file's)");
   sim->add_option("--seconds", o->sim_seconds, "Shorten the scenario to this many seconds")->check(CLI::PositiveNumber);
   sim->add_option("--fps", o->sim_fps, "Frame rate of the generated recording (default: the scenario's, 30)")->check(CLI::PositiveNumber);
   sim->add_option("--scanner", o->scanner_file, "Inspection scanner calibration (default: calibration/inspection_stereo.yaml next to the config)");
@@ -122,7 +142,7 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
                    "Draw the simulated arm into the frames of a recording markcell sim did not make (a synthetic one of "
                    "another tool)")
       ->excludes("--no-arm");
-  const auto run = [o, stop_signals, calibrate_board](bool is_replay) {
+  const auto run = [o, stop_signals, calibrate_board, seed_option](bool is_replay) {
     const auto config = load_or_report(o->rig_config);
     if (!config) return kExitConfig;
     // A stop asked for ends the run at its next step, with its report marked partial.
@@ -137,6 +157,7 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
     options.calibration = o->replay_calibration;
     options.gpio_sim = o->rig_gpio_sim;
     options.arm_serial_peer = o->rig_arm_serial_peer;
+    options.plc_script_given = !o->rig_plc_script.empty();
     if (!o->rig_plc_script.empty()) {
       try {
         options.plc_events = sim::load_plc_script(o->rig_plc_script);
@@ -150,7 +171,7 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
     std::string scanner_file = o->scanner_file;
     if (scanner_file.empty())
       scanner_file = (std::filesystem::path(o->rig_config).parent_path() / "calibration" / "inspection_stereo.yaml").string();
-    return sim_command(*config, o->sim_scenario, o->sim_seed, o->sim_seconds, o->sim_fps, scanner_file, o->rig_out, options,
+    return sim_command(*config, o->sim_scenario, seed_option->count() > 0, o->sim_seed, o->sim_seconds, o->sim_fps, scanner_file, o->rig_out, options,
                        calibrate_board);
   };
   out.push_back({sim, [run] { return run(false); }, true});

@@ -33,9 +33,9 @@ InspectionRecord simulate_inspection(const std::string& panel_id, const rig::Pan
     out.id = d.id;
     for (int i = 0; i < noise.points_per_defect; ++i) {
       // Uniform over the disc around the centre, on the surface, pressed in by the ding.
-      const double rho = noise.ding_radius * std::sqrt(unit(rng)), phi = 2 * M_PI * unit(rng);
+      const double rho = d.radius * std::sqrt(unit(rng)), phi = 2 * M_PI * unit(rng);
       const double x = d.x + rho * std::cos(phi), y = d.y + rho * std::sin(phi);
-      const double dent = noise.ding_depth * std::exp(-0.5 * (rho * rho) / (0.4 * noise.ding_radius * 0.4 * noise.ding_radius));
+      const double dent = noise.ding_depth * std::exp(-0.5 * (rho * rho) / (0.4 * d.radius * 0.4 * d.radius));
       const double pressed = dent + depth(rng);
       const MeshHit front = panel.surface->from_front(x, y);
       if (!front.hit()) continue;  // over a hole or past an edge: the scanner sees no surface there

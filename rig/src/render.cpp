@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <exception>
 #include <stdexcept>
+#include <thread>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
@@ -31,16 +33,16 @@ Eigen::Vector2d project_point(const vision::CameraModel& c, const Eigen::Vector3
 }
 
 namespace {
-// 8 samples per pixel, stratified: sample s lies in column s of an 8x8 grid and in a row
-// of its own (n-rooks), jittered inside its cell, with the rows' order and the jitter
-// drawn per pixel from a fixed generator. A sensor's pixel integrates light over its area;
-// one pattern shared by every pixel would quantise an axis-aligned edge to steps of 1/8
-// pixel in every pixel along it alike, a bias of up to 0.06 px that no window averages
-// away (0.05 px of disparity, 1 mm of depth at 3.1 m); per-pixel patterns make that error
-// independent from pixel to pixel, so an edge's position comes out unbiased.
-constexpr int kSamples = 8;
+// A pixel integrates light over its area. Inside a surface the shading is smooth at the
+// scale of a pixel (a 2 cm texture, facets that turn by milliradians), so the ray
+// through the pixel's centre gives its mean to second order. Where an edge crosses a
+// pixel (its centre's ray meets another thing, or another grey, than a neighbour's) the
+// pixel is integrated with kEdgeGrid^2 jittered samples, the pattern fixed per pixel:
+// one pattern shared by every pixel would quantise an axis-aligned edge to steps of
+// 1/kEdgeGrid pixel in every pixel along it alike, a bias no window averages away; a
+// pattern of its own per pixel makes that error independent from pixel to pixel.
 constexpr int kEdgeGrid = 8;         // an edge pixel's samples: kEdgeGrid^2
-constexpr float kEdgeSpread = 2.0f;  // grey levels between a pixel's samples that mark an edge
+constexpr float kEdgeSpread = 2.0f;  // grey levels between neighbours' centres that mark an edge
 
 // Calls f(d_Cam) with the unit ray of each of an edge pixel's kEdgeGrid^2 samples: a
 // jittered grid whose pattern is fixed per pixel, each ray the bilinear blend of the
@@ -65,35 +67,17 @@ StereoRenderer::StereoRenderer(vision::StereoCalibration cameras, RenderSettings
   for (int cam = 0; cam < 2; ++cam) {
     const vision::CameraModel& c = cam == 0 ? cameras_.left : cameras_.right;
     std::vector<cv::Point2f> pixels;
-    pixels.reserve(static_cast<std::size_t>(c.width) * static_cast<std::size_t>(c.height) * kSamples);
-    SplitMix rng{0x6d61726b63656c6cull + static_cast<std::uint64_t>(cam)};  // "markcell"
-    std::array<int, kSamples> rows{};
+    pixels.reserve(static_cast<std::size_t>(c.width) * static_cast<std::size_t>(c.height));
     for (int v = 0; v < c.height; ++v)
-      for (int u = 0; u < c.width; ++u) {
-        for (int s = 0; s < kSamples; ++s) rows[static_cast<std::size_t>(s)] = s;
-        for (int s = kSamples - 1; s > 0; --s)  // Fisher-Yates
-          std::swap(rows[static_cast<std::size_t>(s)], rows[static_cast<std::size_t>(rng.below(static_cast<std::size_t>(s + 1)))]);
-        for (int s = 0; s < kSamples; ++s) {  // pixel (u, v) covers [u - 0.5, u + 0.5] x [v - 0.5, v + 0.5]
-          const double jx = rng.unit(), jy = rng.unit();  // in this order on every compiler
-          pixels.emplace_back(static_cast<float>(u - 0.5 + (s + jx) / kSamples),
-                              static_cast<float>(v - 0.5 + (rows[static_cast<std::size_t>(s)] + jy) / kSamples));
-        }
-      }
+      for (int u = 0; u < c.width; ++u) pixels.emplace_back(static_cast<float>(u), static_cast<float>(v));
     cv::Mat K;
     cv::eigen2cv(c.K, K);
     std::vector<cv::Point2f> normalised;
     cv::undistortPoints(pixels, normalised, K, c.distortion.empty() ? cv::Mat() : c.distortion);
-    cv::Mat rays(c.height, c.width * kSamples, CV_32FC3);
-    std::size_t i = 0;
-    for (int v = 0; v < c.height; ++v) {
-      cv::Vec3f* row = rays.ptr<cv::Vec3f>(v);
-      for (int k = 0; k < c.width * kSamples; ++k, ++i) {
-        const auto& q = normalised[i];
-        const double norm = std::sqrt(q.x * q.x + q.y * q.y + 1.0);
-        row[k] = cv::Vec3f(static_cast<float>(q.x / norm), static_cast<float>(q.y / norm), static_cast<float>(1.0 / norm));
-      }
-    }
-    rays_.push_back(rays);
+    std::vector<Eigen::Vector3d> rays;
+    rays.reserve(normalised.size());
+    for (const auto& q : normalised) rays.push_back(Eigen::Vector3d(q.x, q.y, 1.0).normalized());
+    centres_.push_back(std::move(rays));
     // The normalised image coordinates (x, y, 1) of every pixel corner, for edge pixels'
     // extra samples: undistortion is smooth at the scale of a pixel, so a bilinear blend
     // of a pixel's four corners gives any ray inside it (exactly, without distortion).
@@ -168,9 +152,11 @@ double hit_capsule(const Eigen::Vector3d& d, const Occluder& c) {
 
 }  // namespace
 
-// Casts every sample ray of `camera` in the object's frame; `shade(o, d, d_Cam)` returns
-// the grey of a ray (origin o and direction d in the object's frame, d_Cam in the
-// camera's). Then averages the samples, blurs, exposes and adds the seeded noise.
+// Casts the centre ray of every pixel of `camera` in the object's frame, row by row:
+// `shade(o, d, d_Cam, n, out)` shades n rays (origin o and directions d in the object's
+// frame, d_Cam in the camera's) into out. Pixels whose centre differs from a neighbour's
+// (another label, or another grey by more than kEdgeSpread) are integrated again with
+// kEdgeGrid^2 samples. Then blurs, exposes and adds the seeded noise.
 template <typename Shade>
 void StereoRenderer::cast(int camera, const Eigen::Isometry3d& X_CamR_Object, std::uint64_t seed, double exposure,
                           Shade&& shade, cv::Mat& out) const {
@@ -179,32 +165,58 @@ void StereoRenderer::cast(int camera, const Eigen::Isometry3d& X_CamR_Object, st
   const Eigen::Isometry3d X_Cam_Object = X_Cam_CamR * X_CamR_Object;
   const Eigen::Matrix3d R_Object_Cam = X_Cam_Object.linear().transpose();
   const Eigen::Vector3d o = -(R_Object_Cam * X_Cam_Object.translation());
-  const cv::Mat& rays = rays_[static_cast<std::size_t>(camera)];
-  cv::Mat fine(rays.rows, rays.cols, CV_32F);
-  for (int v = 0; v < rays.rows; ++v) {
-    const cv::Vec3f* rr = rays.ptr<cv::Vec3f>(v);
-    float* row = fine.ptr<float>(v);
-    for (int u = 0; u < rays.cols; ++u) {
-      const Eigen::Vector3d d_Cam(rr[u][0], rr[u][1], rr[u][2]);
-      row[u] = static_cast<float>(shade(o, R_Object_Cam * d_Cam, d_Cam) * exposure);
+  const std::vector<Eigen::Vector3d>& rays = centres_[static_cast<std::size_t>(camera)];
+  const auto w = static_cast<std::size_t>(c.width);
+  cv::Mat image(c.height, c.width, CV_32F);
+  std::vector<std::uint32_t> label(w * static_cast<std::size_t>(c.height));
+  std::vector<Eigen::Vector3d> d(w);
+  std::vector<Shaded> shaded(w);
+  for (int v = 0; v < c.height; ++v) {
+    const Eigen::Vector3d* d_Cam = rays.data() + static_cast<std::size_t>(v) * w;
+    for (std::size_t u = 0; u < w; ++u) d[u] = R_Object_Cam * d_Cam[u];
+    shade(o, d.data(), d_Cam, w, shaded.data());
+    float* row = image.ptr<float>(v);
+    for (std::size_t u = 0; u < w; ++u) {
+      row[u] = static_cast<float>(shaded[u].grey * exposure);
+      label[static_cast<std::size_t>(v) * w + u] = shaded[u].label;
     }
   }
-  cv::Mat image;
-  cv::reduce(fine.reshape(1, c.width * c.height), image, 1, cv::REDUCE_AVG);  // the samples' mean, per pixel
-  image = image.reshape(1, c.height);
-  // Where a pixel's samples disagree, an edge or a corner crosses it: 8 samples place the
-  // edge only to about 1/8 pixel there, so such a pixel is integrated again with 64
-  // samples on a jittered 8x8 grid (the pattern fixed per pixel, like the sensor's).
+  // Edge pixels: both pixels of any neighbouring pair (along a row, a column or a
+  // diagonal) whose centres disagree.
+  cv::Mat edge(c.height, c.width, CV_8U, cv::Scalar(settings_.every_pixel_at_64 ? 1 : 0));
+  const float spread = kEdgeSpread * static_cast<float>(exposure);
+  const auto differ = [&](int v0, int u0, int v1, int u1) {
+    if (v1 < 0 || v1 >= c.height || u1 < 0 || u1 >= c.width) return;
+    const std::size_t i0 = static_cast<std::size_t>(v0) * w + static_cast<std::size_t>(u0);
+    const std::size_t i1 = static_cast<std::size_t>(v1) * w + static_cast<std::size_t>(u1);
+    if (label[i0] != label[i1] || std::abs(image.at<float>(v0, u0) - image.at<float>(v1, u1)) > spread) {
+      edge.at<std::uint8_t>(v0, u0) = 1;
+      edge.at<std::uint8_t>(v1, u1) = 1;
+    }
+  };
+  for (int v = 0; v < c.height; ++v)
+    for (int u = 0; u < c.width; ++u) {
+      differ(v, u, v, u + 1);
+      differ(v, u, v + 1, u);
+      differ(v, u, v + 1, u + 1);
+      differ(v, u, v + 1, u - 1);
+    }
   const cv::Mat& grid = corners_[static_cast<std::size_t>(camera)];
+  constexpr int kEdgeSamples = kEdgeGrid * kEdgeGrid;
+  std::array<Eigen::Vector3d, kEdgeSamples> e_Cam, e;
+  std::array<Shaded, kEdgeSamples> e_shaded;
   for (int v = 0; v < c.height; ++v) {
-    const float* samples = fine.ptr<float>(v);
+    const std::uint8_t* is_edge = edge.ptr<std::uint8_t>(v);
     float* pixel = image.ptr<float>(v);
     for (int u = 0; u < c.width; ++u) {
-      const auto [lo, hi] = std::minmax_element(samples + u * kSamples, samples + (u + 1) * kSamples);
-      if (*hi - *lo <= kEdgeSpread * exposure) continue;
+      if (is_edge[u] == 0) continue;
+      std::size_t k = 0;
+      for_each_edge_ray(grid, camera, u, v, [&](const Eigen::Vector3d& d_Cam) { e_Cam[k++] = d_Cam; });
+      for (std::size_t i = 0; i < e.size(); ++i) e[i] = R_Object_Cam * e_Cam[i];
+      shade(o, e.data(), e_Cam.data(), e.size(), e_shaded.data());
       double sum = 0;
-      for_each_edge_ray(grid, camera, u, v, [&](const Eigen::Vector3d& d_Cam) { sum += shade(o, R_Object_Cam * d_Cam, d_Cam); });
-      pixel[u] = static_cast<float>(sum / (kEdgeGrid * kEdgeGrid) * exposure);
+      for (const Shaded& x : e_shaded) sum += x.grey;
+      pixel[u] = static_cast<float>(sum / kEdgeSamples * exposure);
     }
   }
   if (settings_.blur_sigma_px > 0) cv::GaussianBlur(image, image, cv::Size(0, 0), settings_.blur_sigma_px);
@@ -224,24 +236,31 @@ void StereoRenderer::render_view(int camera, const Panel& panel, const Eigen::Is
   const Eigen::Vector3d light_Panel = (R_Panel_Cam * X_Cam_CamR.linear() * settings_.light_CamR).normalized();
   std::vector<Occluder> occ_Cam;
   for (const auto& o : occluders) occ_Cam.push_back(Occluder{X_Cam_CamR * o.a_CamR, X_Cam_CamR * o.b_CamR, o.radius, o.grey});
-  const auto shade = [&](const Eigen::Vector3d& o_Panel, const Eigen::Vector3d& d, const Eigen::Vector3d& d_Cam) {
-    double grey = settings_.background_grey;
-    double depth = 1e9;
-    const MeshHit hit = panel.surface->intersect(o_Panel, d);
-    if (hit.hit()) {
-      // The triangle's normal: the meshes' facets turn by milliradians, a tenth of a grey level.
-      const double lambert = std::max(0.0, hit.normal.dot(light_Panel));
-      grey = settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(hit.p.x(), hit.p.y());
-      depth = hit.t;
-    }
-    for (const auto& oc : occ_Cam) {
-      const double to = hit_capsule(d_Cam, oc);
-      if (to > 0 && to < depth) {
-        depth = to;
-        grey = oc.grey;
+  std::vector<MeshHit> hits;
+  // Labels: 0 the background, 1 the panel, 2 + k occluder k.
+  const auto shade = [&](const Eigen::Vector3d& o_Panel, const Eigen::Vector3d* d, const Eigen::Vector3d* d_Cam, std::size_t n,
+                         Shaded* shaded) {
+    hits.resize(n);
+    panel.surface->intersect(o_Panel, d, n, hits.data());
+    for (std::size_t i = 0; i < n; ++i) {
+      Shaded s{settings_.background_grey, 0};
+      double depth = 1e9;
+      const MeshHit& hit = hits[i];
+      if (hit.hit()) {
+        // The triangle's normal: the meshes' facets turn by milliradians, a tenth of a grey level.
+        const double lambert = std::max(0.0, hit.normal.dot(light_Panel));
+        s = {settings_.panel_grey * (0.55 + 0.45 * lambert) + settings_.texture_amplitude * texture(hit.p.x(), hit.p.y()), 1};
+        depth = hit.t;
       }
+      for (std::size_t k = 0; k < occ_Cam.size(); ++k) {
+        const double to = hit_capsule(d_Cam[i], occ_Cam[k]);
+        if (to > 0 && to < depth) {
+          depth = to;
+          s = {static_cast<double>(occ_Cam[k].grey), static_cast<std::uint32_t>(2 + k)};
+        }
+      }
+      shaded[i] = s;
     }
-    return grey;
   };
   cast(camera, X_CamR_Panel, seed, exposure, shade, out);
 }
@@ -257,7 +276,7 @@ void StereoRenderer::paint_view(int camera, const Occluder* occluders, std::size
   const vision::CameraModel& c = camera == 0 ? cameras_.left : cameras_.right;
   if (image.type() != CV_8UC1 || image.cols != c.width || image.rows != c.height) return;
   const Eigen::Isometry3d X_Cam_CamR = camera == 0 ? cameras_.X_CamR_CamL.inverse() : Eigen::Isometry3d::Identity();
-  const cv::Mat& rays = rays_[static_cast<std::size_t>(camera)];
+  const std::vector<Eigen::Vector3d>& rays = centres_[static_cast<std::size_t>(camera)];
   const double f = c.K(0, 0);
   for (std::size_t k = 0; k < count; ++k) {
     const Occluder& o = occluders[k];
@@ -272,26 +291,19 @@ void StereoRenderer::paint_view(int camera, const Occluder* occluders, std::size
     const int v1 = std::min(c.height - 1, static_cast<int>(std::ceil(std::max(pa.y(), pb.y()) + grow)));
     const double pixel = std::max(a.z(), b.z()) / f * 1.5;  // a pixel's footprint at the capsule, generously
     for (int v = v0; v <= v1; ++v) {
-      const cv::Vec3f* rr = rays.ptr<cv::Vec3f>(v);
+      const Eigen::Vector3d* rr = rays.data() + static_cast<std::size_t>(v) * static_cast<std::size_t>(c.width);
       std::uint8_t* row = image.ptr<std::uint8_t>(v);
       for (int u = u0; u <= u1; ++u) {
-        // The pixel's middle sample decides inside and outside; only edge pixels sample all 8.
-        const cv::Vec3f& m = rr[u * kSamples + kSamples / 2];
-        const double dm = ray_segment(Eigen::Vector3d(m[0], m[1], m[2]), a, b).distance;
-        int covered = 0;
-        if (dm < o.radius - pixel) covered = kSamples;
-        else if (dm < o.radius + pixel)
-          for (int sidx = 0; sidx < kSamples; ++sidx) {
-            const cv::Vec3f& r = rr[u * kSamples + sidx];
-            covered += ray_segment(Eigen::Vector3d(r[0], r[1], r[2]), a, b).distance < o.radius ? 1 : 0;
-          }
-        if (covered == 0) continue;
-        if (covered == kSamples) {
+        // The pixel's centre decides inside and outside; pixels near the outline take the
+        // 64 samples the ray-caster takes at an edge.
+        const double dm = ray_segment(rr[u], a, b).distance;
+        if (dm >= o.radius + pixel) continue;
+        if (dm < o.radius - pixel) {
           row[u] = o.grey;
           continue;
         }
-        // An edge pixel: its 64 samples, as the ray-caster takes them.
-        covered = 0;
+        // Near the outline: its 64 samples, as the ray-caster takes them at an edge.
+        int covered = 0;
         for_each_edge_ray(corners_[static_cast<std::size_t>(camera)], camera, u, v,
                           [&](const Eigen::Vector3d& d) { covered += ray_segment(d, a, b).distance < o.radius ? 1 : 0; });
         constexpr int kEdge = kEdgeGrid * kEdgeGrid;
@@ -310,15 +322,20 @@ void StereoRenderer::render_board(int cols, int rows, double square, const Eigen
                                   std::uint64_t seed, cv::Mat& left, cv::Mat& right) const {
   // Printed black on white, one white square of margin around the pattern.
   const double x0 = -2 * square, x1 = (cols + 1) * square, y0 = -2 * square, y1 = (rows + 1) * square;
-  const auto shade = [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Eigen::Vector3d&) {
-    if (std::abs(d.z()) < 1e-12) return settings_.background_grey;
+  // Labels: 0 the background, 1 the margin and white squares, 2 the black squares.
+  const auto shade_one = [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d) -> Shaded {
+    const Shaded background{settings_.background_grey, 0};
+    if (std::abs(d.z()) < 1e-12) return background;
     const double t = -o.z() / d.z();
-    if (t <= 0) return settings_.background_grey;
+    if (t <= 0) return background;
     const double x = o.x() + t * d.x(), y = o.y() + t * d.y();
-    if (x < x0 || x > x1 || y < y0 || y > y1) return settings_.background_grey;
-    if (x < -square || x > cols * square || y < -square || y > rows * square) return 220.0;  // margin
+    if (x < x0 || x > x1 || y < y0 || y > y1) return background;
+    if (x < -square || x > cols * square || y < -square || y > rows * square) return {220.0, 1};  // margin
     const auto i = static_cast<long>(std::floor(x / square)), j = static_cast<long>(std::floor(y / square));
-    return ((i + j) & 1) == 0 ? 20.0 : 220.0;
+    return ((i + j) & 1) == 0 ? Shaded{20.0, 2} : Shaded{220.0, 1};
+  };
+  const auto shade = [&](const Eigen::Vector3d& o, const Eigen::Vector3d* d, const Eigen::Vector3d*, std::size_t n, Shaded* out) {
+    for (std::size_t i = 0; i < n; ++i) out[i] = shade_one(o, d[i]);
   };
   cast(0, X_CamR_Board, seed, 1.0, shade, left);
   cast(1, X_CamR_Board, seed, 1.0, shade, right);
@@ -326,8 +343,29 @@ void StereoRenderer::render_board(int cols, int rows, double square, const Eigen
 
 void StereoRenderer::render(const Panel& panel, const Eigen::Isometry3d& X_CamR_Panel, double exposure, std::uint64_t seed,
                             const std::vector<Occluder>& occluders, cv::Mat& left, cv::Mat& right) const {
-  render_view(0, panel, X_CamR_Panel, exposure, seed, occluders, left);
-  render_view(1, panel, X_CamR_Panel, exposure, seed, occluders, right);
+  if (settings_.threads < 2) {
+    render_view(0, panel, X_CamR_Panel, exposure, seed, occluders, left);
+    render_view(1, panel, X_CamR_Panel, exposure, seed, occluders, right);
+    return;
+  }
+  // The right view on a second thread: each view is a function of its own inputs alone,
+  // so the images are those of one thread. An exception there is carried back here.
+  std::exception_ptr failed;
+  std::thread second([&] {
+    try {
+      render_view(1, panel, X_CamR_Panel, exposure, seed, occluders, right);
+    } catch (...) {
+      failed = std::current_exception();
+    }
+  });
+  try {
+    render_view(0, panel, X_CamR_Panel, exposure, seed, occluders, left);
+  } catch (...) {
+    second.join();
+    throw;
+  }
+  second.join();
+  if (failed) std::rethrow_exception(failed);
 }
 
 }  // namespace markcell::rig

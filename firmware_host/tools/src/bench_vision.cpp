@@ -30,7 +30,7 @@ double percentile(std::vector<double> v, double p) {
 int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
   cv::setNumThreads(1);  // one core for both: OpenCV would otherwise spread over the machine
   const auto calibration = vision::load_stereo_calibration(config.calibration.stereo);
-  const rig::Scenario scenario = rig::make_scenario(options.scenario, 1);
+  const rig::Scenario scenario = rig::find_scenario(options.scenario, rig::scenario_folder(config.file), 1);
   const rig::Panel panel = rig::configured_panel(config.panel_types, scenario.panel_type);
   const rig::LineMotion motion(scenario.speed, scenario.path, scenario.duration);
   const rig::StereoRenderer renderer(calibration, rig::RenderSettings{});

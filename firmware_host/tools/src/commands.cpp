@@ -1,5 +1,5 @@
 // The tools' subcommands: calibrate-stereo, calibrate-base, record, capacity, select-mfs,
-// bench loop and bench vision.
+// bench loop, bench vision and bench render.
 #include "markcell/tools/commands.hpp"
 
 #include <cstdio>
@@ -71,7 +71,7 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
   if (!scenario.empty()) {
     // The rig's stand-in for the installation engineer: the scenario's panel rendered
     // square to the left camera, its MFs where the panel model has them.
-    const auto s = rig::make_scenario(scenario, 1);
+    const auto s = rig::find_scenario(scenario, "config/scenarios", 1);
     const auto cal = vision::load_stereo_calibration("config/calibration/marking_stereo.yaml");
     cv::Mat reference;
     const rig::Panel shipped = rig::load_panel("config/panels/" + s.panel_type + ".yaml");
@@ -147,7 +147,7 @@ int calibrate_base_command(const CellConfig& config, const std::string& out, std
   std::unique_ptr<BaseCalibrationDevices> devices;
   std::optional<Eigen::Isometry3d> truth;
   if (config.arm.transport == ArmTransport::kSimulated) {
-    const rig::Scenario scenario = rig::make_scenario("calibration-board", seed);
+    const rig::Scenario scenario = rig::find_scenario("calibration-board", rig::scenario_folder(config.file), seed);
     truth = nominal * scenario.X_CamRnominal_CamR;
     devices = make_rig_board_devices(config, stereo, *truth, seed);
     std::cout << "calibrate-base on the rig's calibration-board scenario (seed " << seed
@@ -204,6 +204,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
     std::string bench_config = "config/cell.example.yaml";
     LoopBenchOptions loop;
     VisionBenchOptions vision;
+    RenderBenchOptions render;
   };
   const auto o = std::make_shared<Options>();
 
@@ -298,6 +299,15 @@ void add_tool_commands(CLI::App& app, Commands& out) {
   out.push_back({vision_bench, [o] {
                    return with_config(o->bench_config, [&](const CellConfig& config) {
                      return bench_vision(config, o->vision);
+                   });
+                 }});
+  auto* render_bench = bench->add_subcommand("render", "The rig's renderer per stereo pair, shipped door vs a 200k-triangle door, one core");
+  render_bench->add_option("--config,-c", o->bench_config, "Cell configuration (calibration, panel types)");
+  render_bench->add_option("--pairs", o->render.pairs, "Stereo pairs per mesh")->check(CLI::Range(5, 10000));
+  render_bench->add_option("--json", o->render.json_path, "Write the results as JSON to this file");
+  out.push_back({render_bench, [o] {
+                   return with_config(o->bench_config, [&](const CellConfig& config) {
+                     return bench_render(config, o->render);
                    });
                  }});
 }

@@ -33,13 +33,13 @@ struct InspectionNoise {
   double pixel_sigma = 0.25;        // scanner's corner localisation, px
   double depth_sigma = 0.0003;      // scanner's surface points along the normal, m
   double ding_depth = 0.0004;       // a ding's depth at its centre, m
-  double ding_radius = 0.012;       // m
   int points_per_defect = 60;
 };
 
 struct DefectSpec {
   int id = 0;
-  double x = 0, y = 0;  // centre on the panel surface, panel frame, m
+  double x = 0, y = 0;     // centre on the panel surface, panel frame, m
+  double radius = 0.012;   // the ding's radius on the surface, m
 };
 
 InspectionRecord simulate_inspection(const std::string& panel_id, const rig::Panel& panel,

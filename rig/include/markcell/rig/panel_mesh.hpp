@@ -37,6 +37,10 @@ constexpr std::size_t kMaxMeshTriangles = 4'000'000;
 // triangles, a non-finite vertex.
 TriangleMesh load_mesh(const std::string& path, double metres_per_unit);
 
+// The PLY reader of load_mesh on bytes already read (`name` starts its messages): the
+// project's own, not assimp's (panel_mesh.cpp says why); fuzzed (tests/fuzz/fuzz_mesh).
+TriangleMesh parse_ply(const std::string& name, const std::string& bytes, double metres_per_unit);
+
 // Writes a mesh as binary little-endian PLY (vertices as doubles): the shipped panels'
 // format. Throws naming the file on an I/O error.
 void save_mesh_ply(const std::string& path, const TriangleMesh& mesh);
@@ -63,12 +67,17 @@ class MeshSurface {
 
   // Where the ray o + t d (t > 0; d need not be unit length) first meets the mesh.
   MeshHit intersect(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const;
+  // The same for n rays from one origin (a camera's pixels), traced as coherent packets:
+  // out[i] is what intersect(o, d[i]) gives (a ray through a shared edge may name the
+  // other triangle of the edge: the same point, that facet's normal).
+  void intersect(const Eigen::Vector3d& o, const Eigen::Vector3d* d, std::size_t n, MeshHit* out) const;
   // The front face seen from +z at (x, y) (the side the cameras see of a panel in its
   // frame): the first hit of the ray coming down along -z, or no hit over a hole.
   MeshHit from_front(double x, double y) const;
 
  private:
   struct Embree;
+  MeshHit refine(std::uint32_t triangle, const Eigen::Vector3d& o, const Eigen::Vector3d& d) const;
   TriangleMesh mesh_;
   Eigen::AlignedBox3d bounds_;
   std::unique_ptr<Embree> embree_;

@@ -2,10 +2,11 @@
 // Synthetic views of the marking station's stereo pair: the rig's cameras.
 //
 // A panel is its mesh (panel.hpp), painted uniform grey e-coat with mild shading and a
-// faint fixed texture, in front of a plain background. Each pixel is ray-cast through
-// the camera model (distortion included) at 8 samples (an n-rooks pattern), then
-// blurred, scaled by the exposure and given sensor noise from a seeded generator: the
-// same seed gives the same image.
+// faint fixed texture, in front of a plain background. Each pixel's centre is ray-cast
+// through the camera model (distortion included), pixels an edge crosses at 64 samples
+// (render.cpp says why that is the pixel's area integral), then the image is blurred,
+// scaled by the exposure and given sensor noise from a seeded generator: the same seed
+// gives the same image.
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -37,6 +38,8 @@ struct RenderSettings {
   double blur_sigma_px = 0.6;   // optics; 0: none
   double noise_sigma = 1.5;     // sensor noise, grey levels; 0: none
   Eigen::Vector3d light_CamR{0.3, -1.0, -1.2};  // towards the light, camera frame: above, beside the cameras
+  int threads = 1;              // 2: the two views on two threads (sim); the images do not depend on it
+  bool every_pixel_at_64 = false;  // every pixel integrated at 64 samples: the slow reference of the tests
 };
 
 class StereoRenderer {
@@ -53,7 +56,7 @@ class StereoRenderer {
   void render_board(int cols, int rows, double square, const Eigen::Isometry3d& X_CamR_Board, std::uint64_t seed,
                     cv::Mat& left, cv::Mat& right) const;
   // Paints capsules (CamR frame) over two existing views, in front of whatever they show
-  // (the rig's arm is always between the cameras and the panel): 8 samples per pixel at
+  // (the rig's arm is always between the cameras and the panel): 64 samples per pixel at
   // their edges, flat grey, no noise. Bounded (the capsules' image boxes) and
   // allocation-free: for drawing the simulated arm into replayed frames in closed loop.
   void paint_occluders(const Occluder* occluders, std::size_t count, cv::Mat& left, cv::Mat& right) const noexcept;
@@ -61,6 +64,10 @@ class StereoRenderer {
   Eigen::Vector2d project(int camera, const Eigen::Vector3d& p_CamR) const;
 
  private:
+  struct Shaded {
+    double grey;
+    std::uint32_t label;  // what the ray met: pixels whose centres differ in it are edge pixels
+  };
   template <typename Shade>
   void cast(int camera, const Eigen::Isometry3d& X_CamR_Object, std::uint64_t seed, double exposure, Shade&& shade,
             cv::Mat& out) const;
@@ -69,8 +76,8 @@ class StereoRenderer {
                    std::uint64_t seed, const std::vector<Occluder>& occluders, cv::Mat& out) const;
   vision::StereoCalibration cameras_;
   RenderSettings settings_;
-  // Unit ray directions of every sample, per camera, in that camera's frame.
-  std::vector<cv::Mat> rays_;  // CV_32FC3, h x (8 w)
+  // The unit ray through every pixel's centre, per camera, in that camera's frame, row-major.
+  std::vector<std::vector<Eigen::Vector3d>> centres_;
   // Normalised image coordinates of every pixel corner, per camera (edge pixels' samples).
   std::vector<cv::Mat> corners_;  // CV_64FC2, (h + 1) x (w + 1)
 };

@@ -46,6 +46,7 @@ struct ReplayOptions {
   // The PLC's inputs scripted on top of the panel-present line the replay drives itself
   // (markcell/sim/plc_script.hpp): an e-stop, a cycle disable, a panel leaving early.
   std::vector<sim::PlcEvent> plc_events;
+  bool plc_script_given = false;  // --plc-script: it, not a scenario's own script
   // Real devices, real time: the gpio-sim chip's sysfs folder the rig's peer drives the
   // PLC's inputs and reads the valve through (/sys/devices/platform/gpio-sim.N/gpiochipM).
   // Empty: simulated devices in simulated time. The arm is not drawn into the frames.

@@ -1,18 +1,10 @@
 #pragma once
-// The rig's named scenarios, each generated deterministically from a seed, and the
-// generator that turns one into a recording (vision/RECORDING.md) with its ground truth
-// and the inspection station's record.
-//
-//   paper-door        the paper's door: 3 dings, sled 1.2-1.6 cm/s fluctuating, 36 s
-//   paper-fender      the fender: 4 defects, same line
-//   paper-curved      the door on a rotated sled (a curved line section, about Y0)
-//   line-fast         a real line: 15 cm/s +-10 %, the door crossing the whole view
-//   occlusion-person  paper-door with a person walking through the view
-//   frame-drops       paper-door with frames lost (10 %, and a burst of 15)
-//   nine-defects      the door with 9 dings about 30 cm apart (the paper's capacity)
-//   calibration-board a checkerboard on the gripper at the configured robot poses (15
-//                     in the example), the camera where the configured X_Base_CamR is
-//                     not quite: what `markcell calibrate-base` must find
+// The rig's scenarios are files (config/scenarios/NAME.yaml, docs/rig.md "Scenario
+// files"): a panel type, the line's motion and curve, defects with centres and radii,
+// people walking through the view, frame drops, a PLC script, a seed, the duration and
+// the frame rate; or a calibration board on the gripper (`kind: calibration-board`).
+// Each is generated deterministically from its seed into a recording
+// (vision/RECORDING.md) with its ground truth and the inspection station's record.
 #include <atomic>
 #include <cstdint>
 #include <stdexcept>
@@ -57,11 +49,28 @@ struct Scenario {
   // centimetres and a degree: an installation's nominal drawing against reality).
   Eigen::Isometry3d X_CamRnominal_CamR = Eigen::Isometry3d::Identity();
   bool board_only = false;  // calibration-board: no panel, no line
+  double board_offset_m = 0.02, board_angle_rad = 0.015;  // calibration-board: bounds of that offset
+  std::string plc_script;   // PLC inputs during the replay (markcell/sim/plc_script.hpp); empty: none
 };
 
-const std::vector<std::string>& scenario_names();
-// Throws std::invalid_argument naming the known scenarios for an unknown name.
-Scenario make_scenario(const std::string& name, std::uint64_t seed);
+// Reads a scenario file. Throws std::runtime_error "FILE:LINE: KEY: what is wrong" (an
+// unknown key, a value out of its range, a rotation that is not one, a PLC script
+// outside the file's folder), or FileRefused for a file that is not a regular one of at
+// most 1 MiB. The scenario's name is the file's stem.
+Scenario load_scenario(const std::string& path);
+// The scenario with another seed (noise, speed fluctuation, drops, the board's offset).
+Scenario with_seed(Scenario scenario, std::uint64_t seed);
+// The shipped scenarios' folder for a configuration file: `scenarios/` beside it.
+std::string scenario_folder(const std::string& config_file);
+// The names of the scenario files in a folder (their stems), sorted.
+std::vector<std::string> scenario_names(const std::string& folder);
+// A scenario file from a name (FOLDER/NAME.yaml) or a path (ending in .yaml or .yml, or
+// with a '/'). Throws std::invalid_argument listing the folder's names for an unknown one.
+std::string scenario_file(const std::string& name_or_file, const std::string& folder);
+// scenario_file, load_scenario and with_seed in one.
+Scenario find_scenario(const std::string& name_or_file, const std::string& folder, std::uint64_t seed);
+// calibration-board: draws X_CamRnominal_CamR from the seed within the offset's bounds.
+void draw_board_offset(Scenario& scenario);
 
 struct GenerateOptions {
   Nanos max_duration = -1;   // shorten the scenario (tests); -1: whole

@@ -26,4 +26,12 @@ struct VisionBenchOptions {
 };
 int bench_vision(const CellConfig& config, const VisionBenchOptions& options);
 
+// `markcell bench render`: the rig's renderer per stereo pair on one core, the shipped
+// door's mesh next to the same door subdivided past 200k triangles.
+struct RenderBenchOptions {
+  int pairs = 40;
+  std::string json_path;
+};
+int bench_render(const CellConfig& config, const RenderBenchOptions& options);
+
 }  // namespace markcell::host

@@ -3,6 +3,7 @@
 #include <catch2/catch.hpp>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <string>
 
@@ -188,7 +189,45 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
     const auto& p = truth.mfs[static_cast<std::size_t>(mf - 1)].reference_px;
     return std::to_string(std::lround(p.x()) + dx) + "," + std::to_string(std::lround(p.y()) + dy);
   };
-  // Add MF 1, 2, 3 and 5; a click on the plain background adds nothing; drag the fourth
+  // Headless, the MFs on the command line: each one's move from its click is printed (the
+  // test's own distance from the click to the truth), and a click whose corner is beyond
+  // --snap is refused with the MF's index and both positions.
+  {
+    const std::string given = (dir.path() / "given.yaml").string();
+    const auto ok = run_command(kMarkcell + " select-mfs --image " + image + " --panel door --out " + given + " --mf " +
+                                near(1, 3, -2) + " --mf " + near(2, 2, 3) + " --mf " + near(3, -3, 1));
+    INFO(ok.output);
+    REQUIRE(ok.exit_code == 0);
+    const std::array<std::array<int, 3>, 3> clicks{{{1, 3, -2}, {2, 2, 3}, {3, -3, 1}}};
+    for (const auto& [mf, dx, dy] : clicks) {
+      const auto& t = truth.mfs[static_cast<std::size_t>(mf - 1)].reference_px;
+      const Eigen::Vector2d click(std::lround(t.x()) + dx, std::lround(t.y()) + dy);
+      char from[64];
+      std::snprintf(from, sizeof from, " px from (%.2f, %.2f)", click.x(), click.y());
+      const std::size_t at = ok.output.find(from);
+      REQUIRE(at != std::string::npos);
+      const std::size_t number = ok.output.rfind(", ", at);
+      CHECK(std::stod(ok.output.substr(number + 2, at - number - 2)) == Approx((t - click).norm()).margin(0.05));
+    }
+    const auto far = run_command(kMarkcell + " select-mfs --image " + image + " --panel door --out " + given +
+                                 " --snap 2 --mf " + near(1, 4, 0) + " --mf " + near(2, 0, 0) + " --mf " + near(3, 0, 0));
+    INFO(far.output);
+    CHECK(far.exit_code == 2);
+    const auto& t = truth.mfs[0].reference_px;
+    const Eigen::Vector2d click(std::lround(t.x()) + 4, std::lround(t.y()));
+    const std::string lead = "macro-feature 1: the corner found is ";
+    const std::size_t at = far.output.find(lead);
+    REQUIRE(at != std::string::npos);
+    double moved = 0, cx = 0, cy = 0, x = 0, y = 0;
+    REQUIRE(std::sscanf(far.output.c_str() + at + lead.size(), "%lf px from the click at (%lf, %lf), at (%lf, %lf)", &moved, &cx,
+                        &cy, &x, &y) == 5);
+    CHECK(moved == Approx((t - click).norm()).margin(0.05));
+    CHECK(Eigen::Vector2d(cx, cy) == click);
+    CHECK((Eigen::Vector2d(x, y) - t).norm() < 0.05);
+    CHECK(far.output.find("): beyond the snap radius of 2 px") != std::string::npos);
+  }
+
+  // Add MF 1, 2, 3 and 5; a click near the border adds nothing; drag the fourth
   // (MF 5) onto MF 6; add MF 7 and delete it again; save.
   const std::string out = (dir.path() / "door.yaml").string(), log = (dir.path() / "window.log").string();
   const auto r = run_command(source_path("tests/drive_select_mfs.sh") + " " + kMarkcell + " " + image + " door " + out + " " + log +
@@ -198,7 +237,8 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
   INFO(r.output);
   REQUIRE(r.output.find("exit=0") != std::string::npos);
   CHECK(r.output.find("MF 4 added at") != std::string::npos);
-  CHECK(r.output.find("no corner near (12.00, 470.00) (or too close to the border): not added") != std::string::npos);
+  CHECK(r.output.find("the corner at (14.44, 470.49) is too close to the image border for its template: not added") !=
+        std::string::npos);
   CHECK(r.output.find("MF 4 moved to") != std::string::npos);
   CHECK(r.output.find("MF 5 deleted; 4 left") != std::string::npos);
   CHECK(r.output.find("saved 4 macro-features") != std::string::npos);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include <opencv2/core/persistence.hpp>
 
@@ -20,6 +21,7 @@ void snap_to_corner(const Pyramid& image, Eigen::Vector2d& p, int radius) {
   const int cx = static_cast<int>(std::lround(p.x())), cy = static_cast<int>(std::lround(p.y()));
   for (int y = cy - radius; y <= cy + radius; ++y)
     for (int x = cx - radius; x <= cx + radius; ++x) {
+      if ((x - cx) * (x - cx) + (y - cy) * (y - cy) > radius * radius) continue;  // a disc, as --snap says
       const double s = shi_tomasi(image, x, y, 2);
       if (s > best) {
         best = s;
@@ -41,15 +43,44 @@ cv::Mat patches_to_mat(const PanelTypeModel& model, Which which) {
 }
 }  // namespace
 
-bool snap_macro_feature(const cv::Mat& reference_left, Eigen::Vector2d& p, int snap_radius) {
-  Pyramid pyramid(reference_left.cols, reference_left.rows, kCoarseLevel + 1);
-  pyramid.build(reference_left);
-  if (snap_radius > 0) snap_to_corner(pyramid, p, snap_radius);
-  if (!refine_corner(pyramid, p, 5)) return false;
+namespace {
+std::string at(const Eigen::Vector2d& p) {
+  char b[64];
+  std::snprintf(b, sizeof b, "(%.2f, %.2f)", p.x(), p.y());
+  return b;
+}
+
+SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap_radius) {
+  SnapResult r;
+  r.p = clicked;
+  if (snap_radius > 0) snap_to_corner(pyramid, r.p, snap_radius);
+  if (!refine_corner(pyramid, r.p, 5)) {
+    r.problem = "no corner near " + at(clicked) + " (or too close to the border)";
+    return r;
+  }
+  r.moved_px = (r.p - clicked).norm();
+  if (r.moved_px > snap_limit_px(snap_radius)) {
+    char b[200];
+    std::snprintf(b, sizeof b, "the corner found is %.2f px from the click at %s, at %s: beyond the snap radius of %d px",
+                  r.moved_px, at(clicked).c_str(), at(r.p).c_str(), snap_radius);
+    r.problem = b;
+    return r;
+  }
   // Usable only where make_panel_type can cut both of its templates.
   Patch fine, coarse;
-  return extract_patch(pyramid, 0, p, kTemplateRadius, fine) &&
-         extract_patch(pyramid, kCoarseLevel, p / coarse_scale(), kTemplateRadius / 2 + 1, coarse);
+  if (!extract_patch(pyramid, 0, r.p, kTemplateRadius, fine) ||
+      !extract_patch(pyramid, kCoarseLevel, r.p / coarse_scale(), kTemplateRadius / 2 + 1, coarse))
+    r.problem = "the corner at " + at(r.p) + " is too close to the image border for its template";
+  return r;
+}
+}  // namespace
+
+double snap_limit_px(int snap_radius) { return std::max(snap_radius, 1); }
+
+SnapResult snap_macro_feature(const cv::Mat& reference_left, const Eigen::Vector2d& clicked, int snap_radius) {
+  Pyramid pyramid(reference_left.cols, reference_left.rows, kCoarseLevel + 1);
+  pyramid.build(reference_left);
+  return snap(pyramid, clicked, snap_radius);
 }
 
 PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
@@ -68,18 +99,12 @@ PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference
   m.search_y = search_y;
   for (int i = 0; i < static_cast<int>(positions.size()); ++i) {
     const auto k = static_cast<std::size_t>(i);
+    const SnapResult r = snap(pyramid, positions[k], snap_radius);
+    if (!r.ok()) throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + ": " + r.problem);
     PanelTypeModel::Mf& mf = *m.mfs.emplace_back();  // (at most kMaxMacroFeatures: checked above)
-    Eigen::Vector2d p = positions[k];
-    if (snap_radius > 0) snap_to_corner(pyramid, p, snap_radius);
-    if (!refine_corner(pyramid, p, 5))
-      throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + " at (" +
-                                  std::to_string(positions[k].x()) + ", " + std::to_string(positions[k].y()) +
-                                  ") has no corner within 5 px or is too close to the border");
-    mf.reference_px = p;
-    if (!extract_patch(pyramid, 0, p, kTemplateRadius, mf.template_patch) ||
-        !extract_patch(pyramid, kCoarseLevel, p / coarse_scale(), kTemplateRadius / 2 + 1, mf.coarse_template))
-      throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) +
-                                  " is too close to the image border for its template");
+    mf.reference_px = r.p;
+    extract_patch(pyramid, 0, r.p, kTemplateRadius, mf.template_patch);  // (both checked by snap)
+    extract_patch(pyramid, kCoarseLevel, r.p / coarse_scale(), kTemplateRadius / 2 + 1, mf.coarse_template);
   }
   return m;
 }

@@ -68,6 +68,7 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
                        const std::vector<std::string>& positions, const std::string& scenario, int snap, int search_x,
                        int search_y) {
   vision::PanelTypeModel model;
+  std::vector<Eigen::Vector2d> clicked;  // the positions given on the command line, if any
   if (!scenario.empty()) {
     // The rig's stand-in for the installation engineer: the scenario's panel rendered
     // square to the left camera, its MFs where the panel model has them.
@@ -108,6 +109,7 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
       px.emplace_back(x, y);
     }
     try {
+      if (!positions.empty()) clicked = px;
       model = vision::make_panel_type(panel, img, px, snap, search_x, search_y);
     } catch (const std::exception& e) {
       std::cerr << "markcell select-mfs: " << e.what() << "\n";
@@ -116,9 +118,15 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
   }
   vision::save_panel_type(out, model);
   std::cout << "panel type '" << model.name << "': " << model.count() << " macro-features\n";
-  for (int i = 0; i < model.count(); ++i)
-    std::printf("  MF %2d at (%.2f, %.2f) px\n", i + 1, model.mfs[static_cast<std::size_t>(i)].reference_px.x(),
-                model.mfs[static_cast<std::size_t>(i)].reference_px.y());
+  for (int i = 0; i < model.count(); ++i) {
+    const Eigen::Vector2d& p = model.mfs[static_cast<std::size_t>(i)].reference_px;
+    std::printf("  MF %2d at (%.2f, %.2f) px", i + 1, p.x(), p.y());
+    // How far each MF moved from the position given (snapped, then refined).
+    if (static_cast<std::size_t>(i) < clicked.size())
+      std::printf(", %.2f px from (%.2f, %.2f)", (p - clicked[static_cast<std::size_t>(i)]).norm(),
+                  clicked[static_cast<std::size_t>(i)].x(), clicked[static_cast<std::size_t>(i)].y());
+    std::printf("\n");
+  }
   std::cout << "wrote " << out << "\n";
   return 0;
 }
@@ -265,7 +273,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
   select_mfs->add_option("--panel", o->mf_panel, "Panel type name (as in the configuration's panel_types)");
   select_mfs->add_option("--out", o->mf_out, "Panel type file to write")->required();
   select_mfs->add_option("--mf", o->mf_positions, "Headless: an MF at X,Y pixels (repeat, in order)");
-  select_mfs->add_option("--snap", o->mf_snap, "Snap each MF to the strongest Shi-Tomasi corner within this many pixels")->check(CLI::Range(0, 20));
+  select_mfs->add_option("--snap", o->mf_snap, "Snap each MF to the strongest Shi-Tomasi corner within this many pixels; an MF that would end farther from its click is refused")->check(CLI::Range(0, 20));
   select_mfs->add_option("--search-x", o->mf_search_x, "How far (px) a new panel may sit from the reference along x")->check(CLI::Range(0, 2000));
   select_mfs->add_option("--search-y", o->mf_search_y, "... and along y")->check(CLI::Range(0, 2000));
   select_mfs->add_option("--from-scenario", o->mf_scenario, "Take the MFs of a rig scenario's panel model instead (no image needed)");

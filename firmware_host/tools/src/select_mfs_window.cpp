@@ -39,6 +39,11 @@ struct Selection {
     message = text;
     *log << text << std::endl;
   }
+  static std::string px(double d) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.2f px", d);
+    return b;
+  }
   static std::string at(const Eigen::Vector2d& p) {
     char b[64];
     std::snprintf(b, sizeof b, "(%.2f, %.2f)", p.x(), p.y());
@@ -54,27 +59,25 @@ struct Selection {
       say("no more than " + std::to_string(msg::kMaxMacroFeatures) + " macro-features");
       return;
     }
-    Eigen::Vector2d q = p;
-    if (!vision::snap_macro_feature(*gray, q, snap_radius)) {
-      say("no corner near " + at(p) + " (or too close to the border): not added");
+    const vision::SnapResult r = vision::snap_macro_feature(*gray, p, snap_radius);
+    if (!r.ok()) {
+      say(r.problem + ": not added");
       return;
     }
-    mfs.push_back(q);
+    mfs.push_back(r.p);
     selected = static_cast<int>(mfs.size()) - 1;
-    say("MF " + std::to_string(mfs.size()) + " added at " + at(q));
+    say("MF " + std::to_string(mfs.size()) + " added at " + at(r.p) + ", " + px(r.moved_px) + " from the click");
   }
   void release(const Eigen::Vector2d& p) {
     if (dragging < 0) return;
     auto& mf = mfs[static_cast<std::size_t>(dragging)];
     if ((p - drag_from).norm() > 1.0) {
-      Eigen::Vector2d q = p;
-      if (vision::snap_macro_feature(*gray, q, snap_radius)) {
-        mf = q;
-        say("MF " + std::to_string(dragging + 1) + " moved to " + at(q));
+      if (const vision::SnapResult r = vision::snap_macro_feature(*gray, p, snap_radius); r.ok()) {
+        mf = r.p;
+        say("MF " + std::to_string(dragging + 1) + " moved to " + at(r.p) + ", " + px(r.moved_px) + " from the release");
       } else {
         mf = drag_from;
-        say("no corner near " + at(p) + " (or too close to the border): MF " + std::to_string(dragging + 1) +
-            " stays at " + at(drag_from));
+        say(r.problem + ": MF " + std::to_string(dragging + 1) + " stays at " + at(drag_from));
       }
     } else {
       mf = drag_from;

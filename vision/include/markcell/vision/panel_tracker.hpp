@@ -55,15 +55,26 @@ struct PanelTypeModel {
 };
 inline constexpr int kCoarseLevel = 2;
 
-// Builds a model from a reference image and MF positions (each snapped to the strongest
-// corner within `snap_radius` pixels first when snap_radius > 0). Throws naming the MF
-// that lies too close to the border or has no corner.
+// Where an MF clicked at `clicked` goes: the strongest Shi-Tomasi corner within
+// `snap_radius` px of the click (a disc; 0: no search), refined to sub-pixel. It may end
+// at most snap_limit_px(snap_radius) from the click: a corner farther away is another
+// feature than the one clicked (a round hole's rim beside its centre), refused with both
+// positions, never taken without a word.
+struct SnapResult {
+  Eigen::Vector2d p = Eigen::Vector2d::Zero();  // where the MF goes
+  double moved_px = 0;                          // from the click
+  std::string problem;                          // empty: usable; else why not
+  bool ok() const { return problem.empty(); }
+};
+SnapResult snap_macro_feature(const cv::Mat& reference_left, const Eigen::Vector2d& clicked, int snap_radius);
+// The snap radius, or 1 px with none (the sub-pixel refinement's own allowance).
+double snap_limit_px(int snap_radius);
+
+// Builds a model from a reference image and MF positions, each through
+// snap_macro_feature. Throws naming the MF and its SnapResult's problem.
 PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
                                const std::vector<Eigen::Vector2d>& positions, int snap_radius, int search_x,
                                int search_y);
-// Where make_panel_type puts an MF clicked at `p`: the strongest Shi-Tomasi corner within
-// `snap_radius` pixels, refined to sub-pixel; false when there is no corner there.
-bool snap_macro_feature(const cv::Mat& reference_left, Eigen::Vector2d& p, int snap_radius);
 // OpenCV FileStorage YAML: panel_type, image_width, image_height, search_x_px,
 // search_y_px, macro_features (Nx2 px), templates and coarse_templates (N rows of
 // patch values). Errors name the file and the key.

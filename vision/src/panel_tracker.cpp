@@ -50,7 +50,8 @@ std::string at(const Eigen::Vector2d& p) {
   return b;
 }
 
-SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap_radius) {
+// Also cuts the MF's two templates (fine, coarse), which say whether it is usable there.
+SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap_radius, Patch& fine, Patch& coarse) {
   SnapResult r;
   r.p = clicked;
   if (snap_radius > 0) snap_to_corner(pyramid, r.p, snap_radius);
@@ -66,8 +67,7 @@ SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap
     r.problem = b;
     return r;
   }
-  // Usable only where make_panel_type can cut both of its templates.
-  Patch fine, coarse;
+  // Usable only where both of its templates can be cut.
   if (!extract_patch(pyramid, 0, r.p, kTemplateRadius, fine) ||
       !extract_patch(pyramid, kCoarseLevel, r.p / coarse_scale(), kTemplateRadius / 2 + 1, coarse))
     r.problem = "the corner at " + at(r.p) + " is too close to the image border for its template";
@@ -80,7 +80,8 @@ double snap_limit_px(int snap_radius) { return std::max(snap_radius, 1); }
 SnapResult snap_macro_feature(const cv::Mat& reference_left, const Eigen::Vector2d& clicked, int snap_radius) {
   Pyramid pyramid(reference_left.cols, reference_left.rows, kCoarseLevel + 1);
   pyramid.build(reference_left);
-  return snap(pyramid, clicked, snap_radius);
+  Patch fine, coarse;
+  return snap(pyramid, clicked, snap_radius, fine, coarse);
 }
 
 PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
@@ -99,12 +100,10 @@ PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference
   m.search_y = search_y;
   for (int i = 0; i < static_cast<int>(positions.size()); ++i) {
     const auto k = static_cast<std::size_t>(i);
-    const SnapResult r = snap(pyramid, positions[k], snap_radius);
-    if (!r.ok()) throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + ": " + r.problem);
     PanelTypeModel::Mf& mf = *m.mfs.emplace_back();  // (at most kMaxMacroFeatures: checked above)
+    const SnapResult r = snap(pyramid, positions[k], snap_radius, mf.template_patch, mf.coarse_template);
+    if (!r.ok()) throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + ": " + r.problem);
     mf.reference_px = r.p;
-    extract_patch(pyramid, 0, r.p, kTemplateRadius, mf.template_patch);  // (both checked by snap)
-    extract_patch(pyramid, kCoarseLevel, r.p / coarse_scale(), kTemplateRadius / 2 + 1, mf.coarse_template);
   }
   return m;
 }

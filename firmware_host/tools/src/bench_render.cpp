@@ -18,15 +18,11 @@
 #include "markcell/rig/render.hpp"
 #include "markcell/rig/scenario.hpp"
 #include "markcell/tools/bench.hpp"
+#include "sample_percentile.hpp"
 
 namespace markcell::host {
 
 namespace {
-double percentile(std::vector<double> v, double p) {
-  std::sort(v.begin(), v.end());
-  const auto i = static_cast<std::size_t>(std::min<double>(static_cast<double>(v.size()) - 1, p * static_cast<double>(v.size())));
-  return v[i];
-}
 
 // Each triangle into four through its edges' midpoints (shared midpoints shared): the
 // same surface, four times the triangles.
@@ -81,7 +77,7 @@ int bench_render(const CellConfig& config, const RenderBenchOptions& options) {
       renderer.render(panel, poses[i], 1.0, 1000 + i, {}, lefts[i], right);
       ms.push_back(to_seconds(monotonic_now() - t0) * 1e3);
     }
-    return Timing{percentile(ms, 0.5), percentile(ms, 0.99)};
+    return Timing{sample_percentile(ms, 0.5), sample_percentile(ms, 0.99)};
   };
   std::vector<cv::Mat> shipped_left(poses.size()), fine_left(poses.size());
   const Timing a = time(shipped, shipped_left);

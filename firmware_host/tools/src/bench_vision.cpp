@@ -11,6 +11,7 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "markcell/tools/bench.hpp"
+#include "sample_percentile.hpp"
 #include "markcell/rig/line_motion.hpp"
 #include "markcell/rig/scenario.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -18,14 +19,6 @@
 #include "markcell/rig/render.hpp"
 
 namespace markcell::host {
-
-namespace {
-double percentile(std::vector<double> v, double p) {
-  std::sort(v.begin(), v.end());
-  const auto i = static_cast<std::size_t>(std::min<double>(static_cast<double>(v.size()) - 1, p * static_cast<double>(v.size())));
-  return v[i];
-}
-}  // namespace
 
 int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
   cv::setNumThreads(1);  // one core for both: OpenCV would otherwise spread over the machine
@@ -83,8 +76,8 @@ int bench_vision(const CellConfig& config, const VisionBenchOptions& options) {
     poses += e.has_pose() ? 1 : 0;
     mfs += e.inliers;
   }
-  const double m_ours = percentile(ours, 0.5), p99_ours = percentile(ours, 0.99), max_ours = percentile(ours, 1.0);
-  const double m_floor = percentile(floor, 0.5), p99_floor = percentile(floor, 0.99);
+  const double m_ours = sample_percentile(ours, 0.5), p99_ours = sample_percentile(ours, 0.99), max_ours = sample_percentile(ours, 1.0);
+  const double m_floor = sample_percentile(floor, 0.5), p99_floor = sample_percentile(floor, 0.99);
   std::printf("vision task per stereo pair, %dx%d, %d MFs (%s), %zu pairs, one thread:\n", rig.width(), rig.height(), model.count(),
               options.scenario.c_str(), ours.size());
   std::printf("  markcell (pyramids + tracking + triangulation + pose)  median %.3f ms  p99 %.3f ms  max %.3f ms\n", m_ours, p99_ours,

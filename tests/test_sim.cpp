@@ -470,6 +470,45 @@ TEST_CASE("replay with a scripted PLC: panel present dropping mid-pulse closes t
   CHECK(json.find("panel left during the marking sequence") != std::string::npos);
 }
 
+TEST_CASE("a replay runs the whole recording: each panel-present episode of the PLC script is a panel, each scored on its own sprays") {
+  // 9 s of the paper's door; the PLC takes the panel away at 4.5 s (the first is done by
+  // then) and brings it back at 5 s: two panels, the record offered for each.
+  const std::string recording =
+      generated_scenario("test-sim-paper-door-9s", "paper-door --seconds 9 --fps 10",
+                         std::filesystem::exists(MARKCELL_RELEASE_BINARY) ? std::string(MARKCELL_RELEASE_BINARY) : kMarkcell) +
+      "/recording";
+  test::TempDir dir;
+  const std::string script = dir.write("two.plc", "# the first panel leaves, the next comes\n4.5 plc_panel_present 0\n5.0 plc_panel_present 1\n");
+  const std::string json = replay_report(recording, " --plc-script " + script, (dir.path() / "out").string());
+  INFO(json);
+  const auto report = parse_json(json);
+  CHECK(report["episodes"] == 2);
+  REQUIRE(report["panels"].size() == 2);
+  const auto& first = report["panels"][0];
+  const auto& second = report["panels"][1];
+  CHECK(first["id"] == "paper-door-1");
+  CHECK(second["id"] == "paper-door-1#2");
+  CHECK(first["fault"] == false);
+  CHECK(second["fault"] == false);
+  CHECK(first["finished_s"].get<double>() < 4.5);
+  CHECK(second["started_s"].get<double>() >= 5.0);
+  // Each panel marks all three dings on its own sprays, against the recording's truth.
+  for (const auto& p : {first, second}) {
+    CHECK(p["defects"]["marked"] == 3);
+    CHECK(p["defects"]["planned"] == 3);
+    CHECK(p["false_sprays"] == 0);
+    CHECK(p["marking_error_mm"]["max"].get<double>() < 5.0);
+  }
+  // The top level counts both, and every spray once.
+  CHECK(report["defects"]["marked"] == 6);
+  CHECK(report["defects"]["sprayed"] == 6);
+  CHECK(report["false_sprays"] == 0);
+  CHECK(report["sprays"].size() == 6);
+  std::size_t after = 0;
+  for (const auto& s : report["sprays"]) after += s["t_s"].get<double>() >= 5.0 ? 1 : 0;
+  CHECK(after == 3);
+}
+
 TEST_CASE("a replay shows the frame index lines it refused, in its output and in report.json") {
   test::TempDir dir;
   const auto rec = dir.path() / "recording";

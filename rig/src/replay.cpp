@@ -74,6 +74,24 @@ void check_real_devices(const CellConfig& c, const ReplayOptions& options) {
     throw std::runtime_error(c.file + ": --arm-serial-peer is given but devices.arm.transport is not serial");
 }
 
+// The panels' scores as one: every spray and every panel's defects, in order; the
+// marking error over all marked defects.
+Score merge_scores(const std::vector<PanelRun>& panels, ScoredOn on) {
+  Score all;
+  all.scored_on = on;
+  double sum_sq = 0;
+  for (const PanelRun& p : panels) {
+    const Score& s = p.score;
+    all.sprays.insert(all.sprays.end(), s.sprays.begin(), s.sprays.end());
+    all.defects.insert(all.defects.end(), s.defects.begin(), s.defects.end());
+    all.planned += s.planned, all.marked += s.marked, all.skipped += s.skipped, all.false_sprays += s.false_sprays;
+    all.error_max = std::max(all.error_max, s.error_max);
+    sum_sq += s.error_rms * s.error_rms * s.marked;
+  }
+  all.error_rms = all.marked > 0 ? std::sqrt(sum_sq / all.marked) : 0.0;
+  return all;
+}
+
 // `pose_log_folder`: where this run's poses.csv and mf_tracks.csv go (empty: none).
 PredictorRun run_once(const CellConfig& base, const std::string& recording, const control::PanelJob& job,
                       control::PredictorKind kind, const ReplayOptions& options, const vision::Recording& rec,
@@ -123,7 +141,42 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   }
   cell.use_frame_source(std::move(configured));
   if (!pose_log_folder.empty()) cell.enable_pose_queue();  // (the service loop below writes it)
+  control::MarkingSequence& marking = *cell.marking();
+  // Each panel the cell handled, taken as the next panel is about to come (the sequence
+  // then waits for panel present: its logs stand still) and at the end.
+  struct Handled {
+    control::PanelResult result;
+    std::vector<control::PredictionSample> samples;
+    std::vector<control::PanelFrameRecord> frames;
+  };
+  std::vector<Handled> handled;
+  const auto take_panel = [&](const control::PanelResult& r) {
+    if (r.serial == 0 || (!handled.empty() && handled.back().result.serial >= r.serial)) return;
+    Handled h{r, {}, {}};
+    for (std::size_t i = 0; i < marking.prediction_samples(); ++i) h.samples.push_back(marking.prediction_sample(i));
+    for (std::size_t i = 0; i < marking.panel_frames(); ++i) h.frames.push_back(marking.panel_frame(i));
+    handled.push_back(std::move(h));
+  };
+  // Every panel-present episode is a panel: the inspection record offered as it comes
+  // (the same record each time, the recording being of one panel; the id numbered from
+  // the second on, "#2", so each result is told apart).
+  int episodes_offered = 0;
+  bool present = false;
   const auto drive = [&](LineRole line, bool level) {
+    if (line == LineRole::kPlcPanelPresent && level && !present) {
+      const std::uint64_t done = marking.panels_completed();
+      if (done > 0 && (handled.empty() || handled.back().result.serial < done)) {
+        marking.results().update();  // (the newest completed panel, published by the marking lane)
+        take_panel(marking.results().read());
+      }
+      control::PanelJob next = job;
+      if (++episodes_offered > 1) {
+        const std::string id = std::string(job.panel_id.view()) + "#" + std::to_string(episodes_offered);
+        if (id.size() <= 63) next.panel_id.assign(id);
+      }
+      if (marking.can_offer()) marking.offer_job(next);
+    }
+    if (line == LineRole::kPlcPanelPresent) present = level;
     if (peer) peer->drive(line, level);
     else cell.drive_sim_input(line, level);
   };
@@ -131,8 +184,6 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   const auto now = [&] { return clock != nullptr ? clock->global_now() : cell.clock().now(0); };
   const Nanos start = now();  // the PLC script's and the command log's zero (0 in simulated time)
   cell.start();
-  control::MarkingSequence& marking = *cell.marking();
-  marking.offer_job(job);
   const Nanos end = source.end_time();
   const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
   auto progress = [&](Nanos t) {
@@ -160,6 +211,12 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   events.insert(std::upper_bound(events.begin(), events.end(), leaves, [](Nanos t, const sim::PlcEvent& e) { return t < e.at; }),
                 sim::PlcEvent{leaves, LineRole::kPlcPanelPresent, false});
   events.insert(events.begin(), sim::PlcEvent{0, LineRole::kPlcPanelPresent, true});
+  std::uint64_t episodes = 0;  // rising edges of panel present: the panels the run should handle
+  for (bool level = false; const auto& e : events)
+    if (e.line == LineRole::kPlcPanelPresent) {
+      episodes += e.level && !level ? 1 : 0;
+      level = e.level;
+    }
   std::vector<std::string> cell_faults;
   const auto fault_line = [](const control::Fault& f) {
     char line[256];
@@ -173,7 +230,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   service.plc_events = std::move(events);
   service.drive = drive;
   service.step = seconds(1);
-  service.panels = 1;
+  service.panels = episodes;  // (or the recording's end and the tail, whichever first)
   service.journal = false;
   service.on_fault = [&](const control::Fault& f) { cell_faults.push_back(fault_line(f)); };
   service.on_step = [&](Nanos) { progress(now()); };
@@ -199,11 +256,18 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   cell.shutdown(control::FaultCode::kShutdown, "rig", "replay finished");
   if (peer) peer->stop();
 
+  take_panel(marking.current());  // the last (finished or not: a stop, the recording's end)
   PredictorRun run;
   run.predictor = predictor;
   run.stopped_by = stopped_by;
   run.stopped_at = stopped_by != 0 ? stopped_at : 0;
-  run.panel = marking.current();
+  run.episodes = static_cast<int>(episodes);
+  run.panel = handled.empty() ? marking.current() : handled.front().result;
+  for (const Handled& h : handled) {
+    run.panels.push_back({h.result, {}});
+    run.samples.insert(run.samples.end(), h.samples.begin(), h.samples.end());
+    run.panel_frames.insert(run.panel_frames.end(), h.frames.begin(), h.frames.end());
+  }
   run.vision = *cell.vision_stats();
   if (overlay != nullptr) run.arm = overlay->stats();
   run.frames_skipped = source.skipped();
@@ -221,13 +285,17 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   control::Fault f;
   while (cell.faults().pop(f)) cell_faults.push_back(fault_line(f));
   run.faults.insert(run.faults.end(), cell_faults.begin(), cell_faults.end());
-  for (std::size_t i = 0; i < marking.prediction_samples(); ++i) run.samples.push_back(marking.prediction_sample(i));
-  for (std::size_t i = 0; i < marking.panel_frames(); ++i) run.panel_frames.push_back(marking.panel_frame(i));
-  const int sprayed = run.panel.tally().sprayed;
-  Nanos first = -1;
-  for (const control::DefectResult& d : run.panel.defects)
-    if (d.approach_start >= 0 && (first < 0 || d.approach_start < first)) first = d.approach_start;
-  if (sprayed > 0 && first >= 0) run.seconds_per_defect = to_seconds(run.panel.finished - first) / sprayed;
+  // Seconds per defect: each panel from its first approach to its end, over all sprayed.
+  int sprayed = 0;
+  Nanos busy = 0;
+  for (const PanelRun& p : run.panels) {
+    Nanos first = -1;
+    for (const control::DefectResult& d : p.result.defects)
+      if (d.approach_start >= 0 && (first < 0 || d.approach_start < first)) first = d.approach_start;
+    const int n = p.result.tally().sprayed;
+    if (n > 0 && first >= 0) busy += std::max<Nanos>(0, p.result.finished - first), sprayed += n;
+  }
+  if (sprayed > 0) run.seconds_per_defect = to_seconds(busy) / sprayed;
 
   // Scoring against the recording's truth.
   if (!rec.manifest().has_truth || !rec.manifest().has_defects) return run;
@@ -255,24 +323,32 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
     for (std::size_t i = nozzle->total() - nozzle->kept(); i < nozzle->total(); ++i)
       sprays.push_back({nozzle->spray(i).time, X_CamR_Base * control::to_isometry(nozzle->spray(i).tool)});
   }
-  std::vector<SkippedDefect> skipped;
-  for (int i = 0; i < run.panel.defects.ssize(); ++i) {
-    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
-    if (d.skipped != control::SkipReason::kNone) skipped.push_back({d.id, std::string(control::to_string(d.skipped))});
-  }
+  // Each panel is scored on the sprays from its start to the next panel's (the first's
+  // from the run's start, the last's to its end), so none is lost or counted twice.
   const auto truth_at = [&](Nanos t) { return truth.at(t); };
-  run.score = panel ? score_sprays(*panel, truth_at, defects, sprays, skipped, options.radius)
-                    : score_sprays_by_aim(truth_at, defects, sprays, skipped, options.radius);
-  run.scored = true;
-  for (int i = 0; i < run.panel.defects.ssize(); ++i) {
-    const auto& d = run.panel.defects[static_cast<std::size_t>(i)];
-    if (!d.sprayed) continue;
-    if (const auto c = true_centre(d.id, d.spray_requested)) {
-      const Eigen::Vector3d e = (d.predicted_centre_CamR - *c).cwiseAbs();
-      run.prediction_max_abs = run.prediction_max_abs ? run.prediction_max_abs->cwiseMax(e) : e;
-      run.prediction_per_defect.push_back({d.id, e});
-    }
+  for (std::size_t k = 0; k < run.panels.size(); ++k) {
+    PanelRun& p = run.panels[k];
+    std::vector<SkippedDefect> skipped;
+    for (const control::DefectResult& d : p.result.defects)
+      if (d.skipped != control::SkipReason::kNone) skipped.push_back({d.id, std::string(control::to_string(d.skipped))});
+    std::vector<Spray> mine;
+    for (const Spray& s : sprays)
+      if ((k == 0 || s.time >= p.result.started) && (k + 1 == run.panels.size() || s.time < run.panels[k + 1].result.started))
+        mine.push_back(s);
+    p.score = panel ? score_sprays(*panel, truth_at, defects, mine, skipped, options.radius)
+                    : score_sprays_by_aim(truth_at, defects, mine, skipped, options.radius);
   }
+  run.score = merge_scores(run.panels, panel ? ScoredOn::kSurface : ScoredOn::kAim);
+  run.scored = true;
+  for (const PanelRun& p : run.panels)
+    for (const control::DefectResult& d : p.result.defects) {
+      if (!d.sprayed) continue;
+      if (const auto c = true_centre(d.id, d.spray_requested)) {
+        const Eigen::Vector3d e = (d.predicted_centre_CamR - *c).cwiseAbs();
+        run.prediction_max_abs = run.prediction_max_abs ? run.prediction_max_abs->cwiseMax(e) : e;
+        run.prediction_per_defect.push_back({d.id, e});
+      }
+    }
   // Where each panel frame P truly lies: the rigid fit of its set-up MFs' true positions
   // (CamR at that frame) onto where P put them, X_P_CamRref; once per P.
   std::vector<std::pair<Nanos, Eigen::Isometry3d>> placements;

@@ -48,13 +48,23 @@ Json known_or_null(bool known, Json value) { return known ? std::move(value) : J
 struct Counts {
   int planned = 0, marked = 0, skipped = 0, sprayed = 0;
 };
-Counts counts(const PredictorRun& r) {
+// One panel's counts; its score's `marked` when scored.
+Counts counts(const control::PanelResult& panel, const Score* score) {
   Counts c;
-  const auto tally = r.panel.tally();
+  const auto tally = panel.tally();
   c.skipped = tally.skipped;
   c.sprayed = tally.sprayed;
-  c.planned = r.panel.defects.ssize() - c.skipped;
-  c.marked = r.scored ? r.score.marked : c.sprayed;
+  c.planned = panel.defects.ssize() - c.skipped;
+  c.marked = score != nullptr ? score->marked : c.sprayed;
+  return c;
+}
+// Over every panel of the run.
+Counts counts(const PredictorRun& r) {
+  Counts c;
+  for (const PanelRun& p : r.panels) {
+    const Counts one = counts(p.result, r.scored ? &p.score : nullptr);
+    c.planned += one.planned, c.marked += one.marked, c.skipped += one.skipped, c.sprayed += one.sprayed;
+  }
   return c;
 }
 
@@ -67,11 +77,11 @@ struct PlanCheck {
   bool matches = true;
   double time_error_max = 0;  // s
 };
-PlanCheck plan_check(const PredictorRun& r) {
+PlanCheck plan_check(const control::PanelResult& panel) {
   PlanCheck p;
-  p.made = r.panel.planned_at >= 0;
-  for (int i = 0; i < r.panel.defects.ssize() && p.made; ++i) {
-    const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
+  p.made = panel.planned_at >= 0;
+  for (int i = 0; i < panel.defects.ssize() && p.made; ++i) {
+    const auto& d = panel.defects[static_cast<std::size_t>(i)];
     if (d.plan == control::PlanVerdict::kNotPlanned) continue;
     const bool feasible = d.plan == control::PlanVerdict::kFeasible;
     (feasible ? p.feasible : p.infeasible) += 1;
@@ -82,13 +92,13 @@ PlanCheck plan_check(const PredictorRun& r) {
   return p;
 }
 
-Json plan_json(const PredictorRun& r) {
-  const PlanCheck p = plan_check(r);
+Json plan_json(const control::PanelResult& panel) {
+  const PlanCheck p = plan_check(panel);
   if (!p.made) return nullptr;
   Json verdicts = Json::array();
-  for (const control::DefectResult& d : r.panel.defects) {
+  for (const control::DefectResult& d : panel.defects) {
     // Times from when the plan was made.
-    const auto since = [&](Nanos t) { return t >= 0 ? num(to_seconds(t - r.panel.planned_at)) : Json(nullptr); };
+    const auto since = [&](Nanos t) { return t >= 0 ? num(to_seconds(t - panel.planned_at)) : Json(nullptr); };
     verdicts.push_back(Json{{"id", d.id},
                             {"verdict", control::to_string(d.plan)},
                             {"planned_spray_s", since(d.planned_spray)},
@@ -103,15 +113,45 @@ Json plan_json(const PredictorRun& r) {
 }
 
 // The figures of one predictor's run.
+Json ic_json(const control::Intercalibration& ic) {
+  const bool has_ic = ic.inliers > 0;
+  return Json{{"max_abs", known_or_null(has_ic, vec(ic.max_abs, 100))},
+              {"rms", known_or_null(has_ic, vec(ic.rms, 100))},
+              {"macro_features", ic.inliers},
+              {"status", control::to_string(ic.status)}};
+}
+
+// Each panel of the run (one per panel-present episode): its result and its own score.
+Json panels_json(const PredictorRun& r) {
+  Json out = Json::array();
+  for (const PanelRun& p : r.panels) {
+    const Counts c = counts(p.result, r.scored ? &p.score : nullptr);
+    const bool marked = r.scored && p.score.marked > 0;
+    out.push_back(Json{{"id", p.result.panel_id.view()},
+                       {"fault", p.result.fault},
+                       {"reason", p.result.reason.view()},
+                       {"started_s", num(to_seconds(p.result.started))},
+                       {"finished_s", p.result.finished > 0 ? num(to_seconds(p.result.finished)) : Json(nullptr)},
+                       {"defects", {{"planned", c.planned}, {"marked", c.marked}, {"skipped", c.skipped}, {"sprayed", c.sprayed}}},
+                       {"false_sprays", known_or_null(r.scored, p.score.false_sprays)},
+                       {"marking_error_mm",
+                        {{"max", known_or_null(marked, num(p.score.error_max * 1000))},
+                         {"rms", known_or_null(marked, num(p.score.error_rms * 1000))}}},
+                       {"plan", plan_json(p.result)},
+                       {"intercalibration_cm", ic_json(p.result.intercalibration)}});
+  }
+  return out;
+}
+
 Json run_json(const PredictorRun& r) {
   const Counts c = counts(r);
   Json skipped = Json::array();
-  for (const control::DefectResult& d : r.panel.defects)
-    if (d.skipped != control::SkipReason::kNone) skipped.push_back(Json{{"id", d.id}, {"reason", control::to_string(d.skipped)}});
+  for (std::size_t k = 0; k < r.panels.size(); ++k)
+    for (const control::DefectResult& d : r.panels[k].result.defects)
+      if (d.skipped != control::SkipReason::kNone)
+        skipped.push_back(Json{{"panel", k + 1}, {"id", d.id}, {"reason", control::to_string(d.skipped)}});
   Json per_defect = Json::array();
   for (const auto& d : r.prediction_per_defect) per_defect.push_back(Json{{"id", d.id}, {"abs", vec(d.abs, 1000)}});
-  const auto& ic = r.panel.intercalibration;
-  const bool has_ic = ic.inliers > 0;
   const bool marked = r.scored && r.score.marked > 0, posed = r.pose_samples > 0;
   Json sprays = Json::array();
   for (const auto& s : r.score.sprays)
@@ -123,7 +163,7 @@ Json run_json(const PredictorRun& r) {
       {"predictor", r.predictor},
       {"defects",
        {{"planned", c.planned}, {"marked", c.marked}, {"skipped", c.skipped}, {"sprayed", c.sprayed}, {"skipped_reasons", skipped}}},
-      {"plan", plan_json(r)},
+      {"plan", plan_json(r.panel)},
       {"false_sprays", known_or_null(r.scored, r.score.false_sprays)},
       // What a spray was judged by: where it landed on the recorded panel's surface, or
       // (a panel the rig has no surface of) how far its axis passed from each defect.
@@ -134,11 +174,7 @@ Json run_json(const PredictorRun& r) {
        {{"max_abs", r.prediction_max_abs ? vec(*r.prediction_max_abs, 1000) : Json(nullptr)},
         {"one_frame_ahead_max_abs", vec(r.one_frame_max_abs, 1000)},
         {"per_defect", per_defect}}},
-      {"intercalibration_cm",
-       {{"max_abs", known_or_null(has_ic, vec(ic.max_abs, 100))},
-        {"rms", known_or_null(has_ic, vec(ic.rms, 100))},
-        {"macro_features", ic.inliers},
-        {"status", control::to_string(ic.status)}}},
+      {"intercalibration_cm", ic_json(r.panel.intercalibration)},
       {"pose_error_mm",
        {{"max", known_or_null(posed, num(r.pose_error_max * 1000))},
         {"rms", known_or_null(posed, num(r.pose_error_rms * 1000))},
@@ -152,6 +188,10 @@ Json run_json(const PredictorRun& r) {
       {"deadline_misses", r.deadline_misses},
       {"overruns", r.overruns},
       {"panel", {{"id", r.panel.panel_id.view()}, {"fault", r.panel.fault}, {"reason", r.panel.reason.view()}}},
+      // Every panel of the run: the figures above are over all of them (plan,
+      // intercalibration_cm and panel: the first's).
+      {"episodes", r.episodes},
+      {"panels", panels_json(r)},
       {"vision",
        {{"frames", r.vision.frames},
         {"dropped", r.vision.dropped},
@@ -402,12 +442,15 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
     }
     o << paper << "\n";
   };
+  row("panels handled / episodes", [](const PredictorRun& r) {
+    return std::to_string(r.panels.size()) + "/" + std::to_string(r.episodes);
+  }, "-");
   row("defects marked / planned / skipped", [](const PredictorRun& r) {
     const Counts c = counts(r);
     return std::to_string(c.marked) + "/" + std::to_string(c.planned) + "/" + std::to_string(c.skipped);
   }, report.panel_type == "fender" ? "4 in 15 s" : "3 in 10 s");
   row("plan: feasible / matches the run", [](const PredictorRun& r) {
-    const PlanCheck p = plan_check(r);
+    const PlanCheck p = plan_check(r.panel);
     return p.made ? std::to_string(p.feasible) + "/" + std::to_string(p.feasible + p.infeasible) + " " + (p.matches ? "yes" : "NO")
                   : std::string("-");
   }, "-");
@@ -447,11 +490,11 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
   }, "0.5 Hz");
   row("deadline misses", [](const PredictorRun& r) { return std::to_string(r.deadline_misses); }, "-");
   for (const auto& r : report.runs)
-    for (int i = 0; i < r.panel.defects.ssize(); ++i) {
-      const auto& d = r.panel.defects[static_cast<std::size_t>(i)];
-      if (d.skipped != control::SkipReason::kNone)
-        o << "  [" << r.predictor << "] defect " << d.id << " skipped: " << control::to_string(d.skipped) << "\n";
-    }
+    for (const PanelRun& p : r.panels)
+      for (const control::DefectResult& d : p.result.defects)
+        if (d.skipped != control::SkipReason::kNone)
+          o << "  [" << r.predictor << "] panel " << p.result.panel_id.c_str() << " defect " << d.id
+            << " skipped: " << control::to_string(d.skipped) << "\n";
   o << "\ntiming (" << report.runs.front().predictor << " run, " << (report.devices == "simulated" ? "simulated" : "real")
     << " clock):\n" << report.runs.front().timing_report;
   o << "\nwrote:\n";

@@ -65,10 +65,21 @@ struct TimedPoint {
   Eigen::Vector3d p = Eigen::Vector3d::Zero();
 };
 
+// One panel-present episode of a replay: the panel the cell handled in it, scored on the
+// sprays made from its start to the next panel's.
+struct PanelRun {
+  control::PanelResult result;
+  Score score;                                  // when the recording has ground truth
+};
+
 struct PredictorRun {
   std::string predictor;
-  Score score;
-  control::PanelResult panel;
+  // Every panel the run handled, in order: one per panel-present episode the recording
+  // and the PLC script give (the rig's own: present from the first frame to the last).
+  std::vector<PanelRun> panels;
+  int episodes = 0;                             // panel-present episodes the PLC gave (panels expected)
+  Score score;                                  // all of them together (defects listed per panel, in order)
+  control::PanelResult panel;                   // the first panel (plan, inter-calibration, plots)
   bool scored = false;                          // the recording has ground truth
   std::optional<Eigen::Vector3d> prediction_max_abs;  // at the sprays, CamR axes, m
   struct DefectPrediction {
@@ -96,8 +107,8 @@ struct PredictorRun {
   std::uint64_t peer_late_ticks = 0;            // real devices: the rig peer's ticks begun a period late
   std::string timing_report;
   std::vector<std::string> faults;
-  std::vector<control::PredictionSample> samples;
-  std::vector<control::PanelFrameRecord> panel_frames;
+  std::vector<control::PredictionSample> samples;        // every panel's, in order
+  std::vector<control::PanelFrameRecord> panel_frames;   // every panel's (its first 16 each)
   std::vector<TimedPoint> truth_samples;        // the same defect's true position at each sample
   std::string command_log;                      // every command to the arm and the valve, simulated time
   int stopped_by = 0;                           // the signal that ended the run early (0: it ran to its end)

@@ -225,6 +225,22 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
     CHECK(Eigen::Vector2d(cx, cy) == click);
     CHECK((Eigen::Vector2d(x, y) - t).norm() < 0.05);
     CHECK(far.output.find("): beyond the snap radius of 2 px") != std::string::npos);
+    // A kind asked for: a hole where the door has a corner is refused with why; a kind
+    // that is neither is refused before anything is read.
+    const auto no_hole = run_command(kMarkcell + " select-mfs --image " + image + " --panel door --out " + given + " --mf " +
+                                     near(1, 0, 0) + ",hole --mf " + near(2, 0, 0) + ",corner --mf " + near(3, 0, 0));
+    INFO(no_hole.output);
+    CHECK(no_hole.exit_code == 2);
+    CHECK(no_hole.output.find("macro-feature 1: no hole at (") != std::string::npos);
+    CHECK(no_hole.output.find("rays met an edge)") != std::string::npos);
+    const auto bad_kind = run_command(kMarkcell + " select-mfs --image " + image + " --panel door --out " + given + " --mf " +
+                                      near(1, 0, 0) + ",ring --mf " + near(2, 0, 0) + " --mf " + near(3, 0, 0));
+    INFO(bad_kind.output);
+    CHECK(bad_kind.exit_code == 2);
+    CHECK(bad_kind.output.find("--mf '" + near(1, 0, 0) + ",ring': expected X,Y or X,Y,corner or X,Y,hole in pixels") !=
+          std::string::npos);
+    // The kinds printed: the door's are all corners.
+    CHECK(ok.output.find("MF  1 corner at (") != std::string::npos);
   }
 
   // Add MF 1, 2, 3 and 5; a click near the border adds nothing; drag the fourth
@@ -236,10 +252,11 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
                              " click:" + near(7, -2, -2) + " key:d key:s");
   INFO(r.output);
   REQUIRE(r.output.find("exit=0") != std::string::npos);
-  CHECK(r.output.find("MF 4 added at") != std::string::npos);
-  CHECK(r.output.find("the corner at (14.44, 470.49) is too close to the image border for its template: not added") !=
-        std::string::npos);
-  CHECK(r.output.find("MF 4 moved to") != std::string::npos);
+  CHECK(r.output.find("MF 4 (corner) added at") != std::string::npos);
+  // Plain background by the border: the sensor's noise there is no corner.
+  CHECK(r.output.find("no corner near (12.00, 470.00): the strongest there scores ") != std::string::npos);
+  CHECK(r.output.find("a corner needs 20 (Shi-Tomasi, grey^2 per pixel): not added") != std::string::npos);
+  CHECK(r.output.find("MF 4 (corner) moved to") != std::string::npos);
   CHECK(r.output.find("MF 5 deleted; 4 left") != std::string::npos);
   CHECK(r.output.find("saved 4 macro-features") != std::string::npos);
   const auto chosen = markcell::vision::load_panel_type(out);

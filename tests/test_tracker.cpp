@@ -346,3 +346,162 @@ TEST_CASE("a view without the panel is reported as searching, with the reason") 
   CHECK(e.status == TrackStatus::kSearching);
   CHECK_FALSE(e.reason.empty());
 }
+
+namespace {
+// A bent sheet with a cut-out and three round holes (12, 15 and 10 mm): its MFs the
+// outline's and the cut-out's corners and the holes' centres, holes last.
+test::SheetSpec holed_sheet() {
+  test::SheetSpec s;
+  s.width = 0.8, s.height = 0.56;
+  s.bend_x = 0.15, s.bend_y = 0.1;
+  s.cutouts = {{-0.05, 0.0, 0.15, 0.18}};  // (clear of paper-door's defects, which pose_error measures at)
+  s.holes = {{-0.2, 0.1, 0.012}, {-0.25, -0.12, 0.015}, {0.3, 0.15, 0.010}};
+  return s;
+}
+std::vector<Eigen::Vector3d> holed_sheet_mfs(const test::SheetSpec& s) {
+  std::vector<Eigen::Vector3d> mfs;
+  for (const auto& [x, y] : std::vector<std::pair<double, double>>{{-0.4, -0.28}, {0.4, -0.28}, {0.4, 0.28}, {-0.4, 0.28}})
+    mfs.push_back(s.point(x, y));
+  for (const auto& c : s.cutouts)
+    for (const auto& [x, y] : std::vector<std::pair<double, double>>{{c.x0, c.y0}, {c.x1, c.y0}, {c.x1, c.y1}, {c.x0, c.y1}})
+      mfs.push_back(s.point(x, y));
+  for (const auto& h : s.holes) mfs.push_back(s.point(h.x, h.y));
+  return mfs;
+}
+constexpr int kHoledSheetHoles = 3;
+}  // namespace
+
+TEST_CASE("hole centres: an ellipse fitted to the rim's edge, within 0.1 px of the projected centre in both views") {
+  const test::SheetSpec spec = holed_sheet();
+  const rig::Panel panel = test::sheet_panel("holed", spec, holed_sheet_mfs(spec));
+  const StereoCalibration cal = paper_rig();
+  const StereoRenderer renderer(cal, RenderSettings{});
+  Pyramid pyramid(cal.left.width, cal.left.height, 1);
+  double worst = 0;
+  int fits = 0;
+  // The marking station's geometry (the line 3.1 m away, its frame turned to face the
+  // cameras), at three places along the travel, one of them turned 0.1 rad about y.
+  for (int k = 0; k < 3; ++k) {
+    Eigen::Isometry3d X_CamR_Panel = Eigen::Isometry3d::Identity();
+    X_CamR_Panel.linear() = Eigen::Vector3d(1, -1, -1).asDiagonal();
+    if (k == 2) X_CamR_Panel.linear() = X_CamR_Panel.linear() * Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    X_CamR_Panel.translation() = Eigen::Vector3d(-0.45 + 0.2 * k, 0.02, 3.1);
+    cv::Mat views[2];
+    renderer.render(panel, X_CamR_Panel, 1.0, 500 + static_cast<std::uint64_t>(k), {}, views[0], views[1]);
+    for (int cam = 0; cam < 2; ++cam) {
+      pyramid.build(views[cam]);
+      for (const auto& h : spec.holes) {
+        const Eigen::Vector2d truth = renderer.project(cam, X_CamR_Panel * spec.point(h.x, h.y));
+        const double radius_px = cal.left.K(0, 0) * h.radius / 3.1;
+        HoleFitParams params;
+        params.min_radius = 0.4 * radius_px;
+        params.max_radius = 1.7 * radius_px + 1;
+        const HoleFit fit = fit_hole(pyramid, truth + Eigen::Vector2d(0.8, -0.6), params);  // a guess 1 px off
+        CAPTURE(k, cam, h.x, h.y, to_string(fit.status), fit.edges, fit.rms_px);
+        REQUIRE(fit.ok());
+        CHECK(fit.edges >= 28);
+        CHECK(fit.polarity == 1);  // the background through the hole is darker than the e-coat
+        CHECK(fit.semi_major == Approx(radius_px).epsilon(0.1));
+        worst = std::max(worst, (fit.centre - truth).norm());
+        ++fits;
+      }
+    }
+  }
+  INFO("largest hole-centre error over " << fits << " fits: " << worst << " px");
+  CHECK(worst < 0.1);
+}
+
+TEST_CASE("select-mfs's snap: a click in a hole is a hole, a click off any feature or a hole asked of a corner is refused with why") {
+  const test::SheetSpec spec = holed_sheet();
+  const rig::Panel panel = test::sheet_panel("holed", spec, holed_sheet_mfs(spec));
+  const StereoCalibration cal = paper_rig();
+  const StereoRenderer renderer(cal, RenderSettings{});
+  Eigen::Isometry3d X_CamR_Panel = Eigen::Isometry3d::Identity();
+  X_CamR_Panel.linear() = Eigen::Vector3d(1, -1, -1).asDiagonal();
+  X_CamR_Panel.translation() = Eigen::Vector3d(0.2, 0.0, 3.1);
+  cv::Mat left, right;
+  renderer.render(panel, X_CamR_Panel, 1.0, 77, {}, left, right);
+  const auto px = [&](double x, double y) { return renderer.project(0, X_CamR_Panel * spec.point(x, y)); };
+  // Inside the 15 mm hole, 2 px off its centre: a hole, at its centre.
+  const Eigen::Vector2d hole = px(-0.25, -0.12);
+  const SnapResult in_hole = snap_macro_feature(left, hole + Eigen::Vector2d(2, 1), 5);
+  INFO(in_hole.problem);
+  REQUIRE(in_hole.ok());
+  CHECK(in_hole.kind == MfKind::kHole);
+  CHECK((in_hole.p - hole).norm() < 0.1);
+  CHECK(in_hole.moved_px == Approx(std::sqrt(5.0)).margin(0.1));
+  CHECK(in_hole.hole_radius_px == Approx(cal.left.K(0, 0) * 0.015 / 3.1).epsilon(0.1));
+  // The cut-out's corner: a corner, where it is.
+  const Eigen::Vector2d corner = px(-0.05, 0.0);
+  const SnapResult at_corner = snap_macro_feature(left, corner + Eigen::Vector2d(1, -1), 3);
+  INFO(at_corner.problem);
+  REQUIRE(at_corner.ok());
+  CHECK(at_corner.kind == MfKind::kCorner);
+  CHECK((at_corner.p - corner).norm() < 0.3);
+  // A hole asked for at the corner: refused, naming the click and why.
+  const SnapResult no_hole = snap_macro_feature(left, corner, 3, MfKindRequest::kHole);
+  CHECK_FALSE(no_hole.ok());
+  char click[64];
+  std::snprintf(click, sizeof click, "no hole at (%.2f, %.2f): ", corner.x(), corner.y());
+  CHECK_THAT(no_hole.problem, Catch::StartsWith(click));
+  // On plain panel, away from every edge: neither a corner nor a hole.
+  const Eigen::Vector2d plain = px(-0.1, -0.2);
+  const SnapResult nothing = snap_macro_feature(left, plain, 3);
+  CHECK_FALSE(nothing.ok());
+  char none[64];
+  std::snprintf(none, sizeof none, "no corner near (%.2f, %.2f)", plain.x(), plain.y());
+  CHECK_THAT(nothing.problem, Catch::StartsWith(none));
+  // --snap 0 on a click 2 px off the hole's centre: the fit moves it beyond the 1 px allowed.
+  const SnapResult strict = snap_macro_feature(left, hole + Eigen::Vector2d(2, 0), 0, MfKindRequest::kHole);
+  CHECK_FALSE(strict.ok());
+  CHECK_THAT(strict.problem, Catch::Contains("the hole centre found is") && Catch::Contains("beyond the snap radius of 0 px"));
+}
+
+TEST_CASE("the tracker follows hole MFs beside corners: kinds from the reference image, centres in both views, no allocation") {
+  Sequence s("paper-door");
+  const test::SheetSpec spec = holed_sheet();
+  s.panel = test::sheet_panel("holed", spec, holed_sheet_mfs(spec));
+  const PanelTypeModel model = rig::reference_panel_type(s.scenario, s.panel, s.calibration, s.render);
+  REQUIRE(model.count() == 8 + kHoledSheetHoles);
+  for (int i = 0; i < model.count(); ++i) {
+    CAPTURE(i);
+    CHECK(model.mfs[static_cast<std::size_t>(i)].kind == (i >= 8 ? MfKind::kHole : MfKind::kCorner));
+  }
+  // The kinds survive the file.
+  test::TempDir dir;
+  save_panel_type((dir.path() / "holed.yaml").string(), model);
+  const PanelTypeModel back = load_panel_type((dir.path() / "holed.yaml").string());
+  CHECK(back.mfs[9].kind == MfKind::kHole);
+  CHECK(back.mfs[9].hole_radius_px == Approx(model.mfs[9].hole_radius_px));
+  CHECK(back.mfs[2].kind == MfKind::kCorner);
+  const StereoRig rig(s.calibration);
+  PanelTracker tracker(rig, back, TrackerParams{});
+  cv::Mat l, r;
+  double hole_left = 0, hole_right = 0;
+  std::size_t allocations = 0;
+  Eigen::Vector3d worst = Eigen::Vector3d::Zero();
+  for (int k = 0; k <= 6; ++k) {
+    const Nanos t = millis(200) * k;
+    s.frame(t, 300 + static_cast<std::uint64_t>(k), {}, l, r);
+    test::AllocationGuard guard;
+    const PoseEstimate& e = tracker.process(static_cast<std::uint64_t>(k), t, l, r);
+    if (k > 0) allocations += guard.allocations();
+    CAPTURE(k, to_string(e.status), e.tracked, e.inliers);
+    REQUIRE(e.status == (k == 0 ? TrackStatus::kReinitialised : TrackStatus::kTracking));
+    for (int i = 8; i < model.count(); ++i) {
+      const auto& o = e.mfs[static_cast<std::size_t>(i)];
+      CAPTURE(i);
+      REQUIRE(o.valid);
+      const Eigen::Vector3d p = s.motion.X_CamR_Panel(t) * s.panel.macro_features[static_cast<std::size_t>(i)];
+      hole_left = std::max(hole_left, (o.left - s.renderer.project(0, p)).norm());
+      hole_right = std::max(hole_right, (o.right - s.renderer.project(1, p)).norm());
+    }
+    if (k > 0) worst = worst.cwiseMax(pose_error(s, e, 0, t));
+  }
+  INFO("hole MFs' largest image error: left " << hole_left << " px, right " << hole_right << " px; pose error at the defects "
+                                               << worst.transpose() * 1000 << " mm");
+  CHECK(hole_left < 0.1);
+  CHECK(hole_right < 0.2);
+  CHECK(allocations == 0);
+  CHECK(within(worst, 0.001, 0.005));
+}

@@ -284,8 +284,8 @@ vision::PanelTypeModel reference_panel_type(const Scenario& s, const rig::Panel&
   const rig::StereoRenderer renderer(marking, render);
   cv::Mat left, right;
   renderer.render(panel, X_CamR_Panel, 1.0, s.seed * 7919ULL + 17, {}, left, right);
-  std::vector<Eigen::Vector2d> px;
-  for (const auto& mf : panel.macro_features) px.push_back(renderer.project(0, X_CamR_Panel * mf));
+  std::vector<vision::MfPick> px;  // (each a corner or a hole, as the image shows it)
+  for (const auto& mf : panel.macro_features) px.push_back({renderer.project(0, X_CamR_Panel * mf), vision::MfKindRequest::kAuto});
   if (reference_left != nullptr) *reference_left = left;
   // The line may bring the panel anywhere along its travel into view: search wide.
   return vision::make_panel_type(s.panel_type, left, px, 2, 400, 40);

@@ -50,19 +50,92 @@ std::string at(const Eigen::Vector2d& p) {
   return b;
 }
 
-// Also cuts the MF's two templates (fine, coarse), which say whether it is usable there.
-SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap_radius, Patch& fine, Patch& coarse) {
+// A hole's rays reach from 0.4 to 1.7 of its radius on the reference image: the panel's
+// scale changes little along the line, and the rim stays well inside the range.
+HoleFitParams hole_params(double radius_px) {
+  HoleFitParams p;
+  p.min_radius = std::max(0.4 * radius_px, 0.5);
+  p.max_radius = std::min(1.7 * radius_px + 1.0, kMaxHoleRadiusPx);
+  return p;
+}
+
+// The hole at the click: found from rays out to the snap radius (at least 14 px), then
+// refined as the tracker refines it.
+SnapResult snap_hole(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap_radius) {
   SnapResult r;
   r.p = clicked;
-  if (snap_radius > 0) snap_to_corner(pyramid, r.p, snap_radius);
-  if (!refine_corner(pyramid, r.p, 5)) {
-    r.problem = "no corner near " + at(clicked) + " (or too close to the border)";
+  r.kind = MfKind::kHole;
+  HoleFitParams wide;
+  wide.max_radius = std::clamp<double>(snap_radius, 2.0 * kTemplateRadius, kMaxHoleRadiusPx);
+  const HoleFit first = fit_hole(pyramid, clicked, wide);
+  if (!first.ok()) {
+    char b[200];
+    std::snprintf(b, sizeof b, "no hole at %s: %s (%d of %d rays met an edge)", at(clicked).c_str(),
+                  std::string(to_string(first.status)).c_str(), first.edges, kHoleRays);
+    r.problem = b;
     return r;
   }
+  const double radius = 0.5 * (first.semi_major + first.semi_minor);
+  const HoleFit fit = fit_hole(pyramid, first.centre, hole_params(radius));
+  if (!fit.ok()) {
+    r.problem = "the hole at " + at(first.centre) + " does not refine: " + std::string(to_string(fit.status));
+    return r;
+  }
+  r.p = fit.centre;
+  r.hole_radius_px = 0.5 * (fit.semi_major + fit.semi_minor);
+  r.moved_px = (r.p - clicked).norm();
+  if (fit.semi_major > kMaxHoleMfRadiusPx) {
+    char b[200];
+    std::snprintf(b, sizeof b, "the hole at %s has a radius of %.1f px: at most %.0f px fits the %d-px template",
+                  at(r.p).c_str(), fit.semi_major, kMaxHoleMfRadiusPx, 2 * kTemplateRadius + 1);
+    r.problem = b;
+  }
+  return r;
+}
+
+// Is the click inside a clean hole? (For a click that asks for neither kind.)
+bool looks_like_hole(const SnapResult& hole, const Eigen::Vector2d& clicked, const Pyramid& pyramid) {
+  if (!hole.ok()) return false;
+  const HoleFit again = fit_hole(pyramid, hole.p, hole_params(hole.hole_radius_px));
+  return again.ok() && again.edges * 4 >= 3 * kHoleRays && again.rms_px <= 0.2 && again.semi_minor >= 1.5 &&
+         (clicked - again.centre).norm() < again.semi_minor;
+}
+
+// Also cuts the MF's two templates (fine, coarse), which say whether it is usable there.
+SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap_radius, MfKindRequest kind, Patch& fine,
+                Patch& coarse) {
+  SnapResult r;
+  bool hole = kind == MfKindRequest::kHole;
+  if (kind != MfKindRequest::kCorner) {
+    r = snap_hole(pyramid, clicked, snap_radius);
+    hole = hole || looks_like_hole(r, clicked, pyramid);
+  }
+  if (!hole) {
+    r = SnapResult{};
+    r.p = clicked;
+    if (snap_radius > 0) snap_to_corner(pyramid, r.p, snap_radius);
+    if (!refine_corner(pyramid, r.p, 5)) {
+      r.problem = "no corner near " + at(clicked) + " (or too close to the border)";
+      return r;
+    }
+    // Plain panel refines too (onto its texture and noise): a corner is an edge turning,
+    // far stronger than both.
+    const double strength = shi_tomasi(pyramid, static_cast<int>(std::lround(r.p.x())), static_cast<int>(std::lround(r.p.y())), 2);
+    if (strength < kMinCornerStrength) {
+      char b[200];
+      std::snprintf(b, sizeof b, "no corner near %s: the strongest there scores %.1f, a corner needs %.0f (Shi-Tomasi, grey^2 per pixel)",
+                    at(clicked).c_str(), strength, kMinCornerStrength);
+      r.problem = b;
+      return r;
+    }
+  } else if (!r.ok()) {
+    return r;
+  }
+  const char* what = hole ? "hole centre" : "corner";
   r.moved_px = (r.p - clicked).norm();
   if (r.moved_px > snap_limit_px(snap_radius)) {
     char b[200];
-    std::snprintf(b, sizeof b, "the corner found is %.2f px from the click at %s, at %s: beyond the snap radius of %d px",
+    std::snprintf(b, sizeof b, "the %s found is %.2f px from the click at %s, at %s: beyond the snap radius of %d px", what,
                   r.moved_px, at(clicked).c_str(), at(r.p).c_str(), snap_radius);
     r.problem = b;
     return r;
@@ -70,25 +143,27 @@ SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap
   // Usable only where both of its templates can be cut.
   if (!extract_patch(pyramid, 0, r.p, kTemplateRadius, fine) ||
       !extract_patch(pyramid, kCoarseLevel, r.p / coarse_scale(), kTemplateRadius / 2 + 1, coarse))
-    r.problem = "the corner at " + at(r.p) + " is too close to the image border for its template";
+    r.problem = std::string("the ") + what + " at " + at(r.p) + " is too close to the image border for its template";
   return r;
 }
 }  // namespace
 
+std::string_view to_string(MfKind k) { return k == MfKind::kHole ? "hole" : "corner"; }
+
 double snap_limit_px(int snap_radius) { return std::max(snap_radius, 1); }
 
-SnapResult snap_macro_feature(const cv::Mat& reference_left, const Eigen::Vector2d& clicked, int snap_radius) {
+SnapResult snap_macro_feature(const cv::Mat& reference_left, const Eigen::Vector2d& clicked, int snap_radius,
+                              MfKindRequest kind) {
   Pyramid pyramid(reference_left.cols, reference_left.rows, kCoarseLevel + 1);
   pyramid.build(reference_left);
   Patch fine, coarse;
-  return snap(pyramid, clicked, snap_radius, fine, coarse);
+  return snap(pyramid, clicked, snap_radius, kind, fine, coarse);
 }
 
-PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
-                               const std::vector<Eigen::Vector2d>& positions, int snap_radius, int search_x,
-                               int search_y) {
-  MARKCELL_THROW_UNLESS(positions.size() >= 3 && positions.size() <= static_cast<std::size_t>(kMaxMacroFeatures),
-                        "panel type '" << name << "' has " << positions.size() << " macro-features, 3.."
+PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left, const std::vector<MfPick>& picks,
+                               int snap_radius, int search_x, int search_y) {
+  MARKCELL_THROW_UNLESS(picks.size() >= 3 && picks.size() <= static_cast<std::size_t>(kMaxMacroFeatures),
+                        "panel type '" << name << "' has " << picks.size() << " macro-features, 3.."
                                        << kMaxMacroFeatures << " are needed");
   Pyramid pyramid(reference_left.cols, reference_left.rows, kCoarseLevel + 1);
   pyramid.build(reference_left);
@@ -98,12 +173,14 @@ PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference
   m.image_height = reference_left.rows;
   m.search_x = search_x;
   m.search_y = search_y;
-  for (int i = 0; i < static_cast<int>(positions.size()); ++i) {
+  for (int i = 0; i < static_cast<int>(picks.size()); ++i) {
     const auto k = static_cast<std::size_t>(i);
     PanelTypeModel::Mf& mf = *m.mfs.emplace_back();  // (at most kMaxMacroFeatures: checked above)
-    const SnapResult r = snap(pyramid, positions[k], snap_radius, mf.template_patch, mf.coarse_template);
+    const SnapResult r = snap(pyramid, picks[k].px, snap_radius, picks[k].kind, mf.template_patch, mf.coarse_template);
     if (!r.ok()) throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + ": " + r.problem);
     mf.reference_px = r.p;
+    mf.kind = r.kind;
+    mf.hole_radius_px = r.hole_radius_px;
   }
   return m;
 }
@@ -119,6 +196,12 @@ void save_panel_type(const std::string& path, const PanelTypeModel& m) {
     px.at<double>(i, 1) = m.mfs[static_cast<std::size_t>(i)].reference_px.y();
   }
   fs << "macro_features" << px;
+  fs << "kinds" << "[";
+  for (const auto& mf : m.mfs) fs << std::string(to_string(mf.kind));
+  fs << "]";
+  fs << "hole_radius_px" << "[";
+  for (const auto& mf : m.mfs) fs << mf.hole_radius_px;
+  fs << "]";
   fs << "templates" << patches_to_mat(m, [](const PanelTypeModel::Mf& mf) -> const Patch& { return mf.template_patch; });
   fs << "coarse_templates" << patches_to_mat(m, [](const PanelTypeModel::Mf& mf) -> const Patch& { return mf.coarse_template; });
 }
@@ -145,6 +228,29 @@ PanelTypeModel load_panel_type(const std::string& path) {
     throw std::runtime_error(path + ": 'macro_features' must be an Nx2 double matrix, 3 <= N <= " +
                              std::to_string(kMaxMacroFeatures));
   for (int i = 0; i < px.rows; ++i) m.mfs.emplace_back()->reference_px = {px.at<double>(i, 0), px.at<double>(i, 1)};
+  // Kinds and hole radii: a file from before holes has neither, and its MFs are corners.
+  const cv::FileNode kinds = fs["kinds"], radii = fs["hole_radius_px"];
+  if (!kinds.empty() || !radii.empty()) {
+    if (!kinds.isSeq() || static_cast<int>(kinds.size()) != m.count() || !radii.isSeq() || static_cast<int>(radii.size()) != m.count())
+      throw std::runtime_error(path + ": 'kinds' and 'hole_radius_px' must list one entry per macro-feature (" +
+                               std::to_string(m.count()) + ")");
+    for (int i = 0; i < m.count(); ++i) {
+      PanelTypeModel::Mf& mf = m.mfs[static_cast<std::size_t>(i)];
+      const cv::FileNode k = kinds[i], r = radii[i];
+      const std::string kind = k.isString() ? static_cast<std::string>(k) : std::string();
+      if (kind != "corner" && kind != "hole")
+        throw std::runtime_error(path + ": 'kinds' entry " + std::to_string(i + 1) + " must be corner or hole");
+      mf.kind = kind == "hole" ? MfKind::kHole : MfKind::kCorner;
+      mf.hole_radius_px = r.isReal() || r.isInt() ? static_cast<double>(r) : -1.0;
+      const bool fits = mf.kind == MfKind::kHole ? mf.hole_radius_px >= 1.0 && mf.hole_radius_px <= kMaxHoleMfRadiusPx
+                                                 : mf.hole_radius_px == 0.0;
+      if (!fits)
+        throw std::runtime_error(path + ": 'hole_radius_px' entry " + std::to_string(i + 1) + " must be " +
+                                 (mf.kind == MfKind::kHole ? "1.." + std::to_string(static_cast<int>(kMaxHoleMfRadiusPx)) +
+                                                                 " px for a hole"
+                                                           : std::string("0 for a corner")));
+    }
+  }
   auto read_patches = [&](const cv::Mat& mat, const char* key, int radius, Patch PanelTypeModel::Mf::*out) {
     const int n = (2 * radius + 1) * (2 * radius + 1);
     if (mat.rows != m.count() || mat.cols != n || mat.type() != CV_32F)
@@ -219,13 +325,23 @@ const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const c
   return estimate_;
 }
 
-bool PanelTracker::verify_pair(const Eigen::Vector2d& left, const Eigen::Vector2d& right) const {
-  // The right view must show the corner there too, but the pair's disparity is LK's: a
-  // photometric alignment of the left window onto the right view, whose error does not
-  // depend on where the corner falls between pixels. Two corner refinements, one per view,
-  // each carry their own sub-pixel bias (about 0.1 px) into the disparity: 2 mm of depth.
+bool PanelTracker::refine(int mf, const Pyramid& image, Eigen::Vector2d& p) const {
+  const PanelTypeModel::Mf& m = model_.mfs[static_cast<std::size_t>(mf)];
+  if (m.kind == MfKind::kCorner) return refine_corner(image, p, params_.corner_radius);
+  const HoleFit fit = fit_hole(image, p, hole_params(m.hole_radius_px));
+  if (!fit.ok() || (fit.centre - p).norm() > m.hole_radius_px) return false;
+  p = fit.centre;
+  return true;
+}
+
+bool PanelTracker::verify_pair(int mf, const Eigen::Vector2d& left, const Eigen::Vector2d& right) const {
+  // The right view must show the corner (or the hole) there too, but the pair's disparity
+  // is LK's: a photometric alignment of the left window onto the right view, whose error
+  // does not depend on where the corner falls between pixels. Two corner refinements, one
+  // per view, each carry their own sub-pixel bias (about 0.1 px) into the disparity: 2 mm
+  // of depth.
   Eigen::Vector2d corner = right;
-  if (!refine_corner(right_, corner, params_.corner_radius) || (corner - right).norm() > params_.corner_agree_px) return false;
+  if (!refine(mf, right_, corner) || (corner - right).norm() > params_.corner_agree_px) return false;
   const double d = rig_.epipolar_distance(rig_.undistort(Camera::kLeft, left), rig_.undistort(Camera::kRight, right));
   if (!(d <= params_.epipolar_px)) return false;
   const Eigen::Vector3d p = rig_.triangulate_observed(left, right);
@@ -258,12 +374,11 @@ bool PanelTracker::find_right(int mf, const Eigen::Vector2d& left, Eigen::Vector
       }
     }
   }
-  (void)mf;
   if (best < params_.min_ncc) return false;
   const LkResult lk = track_point(L, right_, left, best_p, params_.lk);
   if (lk.status != LkStatus::kOk) return false;
   right = lk.point;
-  return verify_pair(left, right);
+  return verify_pair(mf, left, right);
 }
 
 void PanelTracker::reinitialise() {
@@ -309,7 +424,7 @@ void PanelTracker::reinitialise() {
         const double c = ncc(model_.mfs[k].template_patch, L, 0, x, y);
         if (c > best) best = c, p = {x, y};
       }
-    if (best < params_.min_ncc || !refine_corner(L, p, params_.corner_radius)) continue;
+    if (best < params_.min_ncc || !refine(i, L, p)) continue;
     Eigen::Vector2d r;
     if (!find_right(i, p, r)) continue;
     auto& o = estimate_.mfs[k];
@@ -363,14 +478,14 @@ void PanelTracker::track() {
     const LkResult back = track_point(L, prev, fwd.point, prev_left_[k], level0_lk_);
     if (back.status != LkStatus::kOk || (back.point - prev_left_[k]).norm() > params_.forward_backward_px) continue;
     Eigen::Vector2d left = fwd.point;
-    if (!refine_corner(L, left, params_.corner_radius)) continue;
+    if (!refine(i, L, left)) continue;
     // Left to right, seeded by the last disparity.
     // The disparity changes little between frames: level 0 first, the pyramid if that fails.
     LkResult lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), level0_lk_);
     if (lr.status != LkStatus::kOk) lr = track_point(L, right_, left, left + (prev_right_[k] - prev_left_[k]), params_.lk);
     if (lr.status != LkStatus::kOk) continue;
     Eigen::Vector2d right = lr.point;
-    if (!verify_pair(left, right)) continue;
+    if (!verify_pair(i, left, right)) continue;
     auto& o = estimate_.mfs[k];
     o.valid = true;
     o.left = left;
@@ -477,12 +592,12 @@ void PanelTracker::reacquire() {
       continue;
     if (ncc(patch_[k], L, 0, static_cast<int>(std::lround(left.x())), static_cast<int>(std::lround(left.y()))) < params_.min_ncc)
       continue;
-    if (!refine_corner(L, left, params_.corner_radius)) continue;
+    if (!refine(i, L, left)) continue;
     // The pose's projection is within a pixel or two: level 0 suffices.
     const LkResult lr = track_point(L, right_, left, right + (left - rig_.project(Camera::kLeft, p)), level0_lk_);
     if (lr.status != LkStatus::kOk) continue;
     right = lr.point;
-    if (!verify_pair(left, right)) continue;
+    if (!verify_pair(i, left, right)) continue;
     if ((rig_.triangulate_observed(left, right) - p).norm() > params_.inlier_m) continue;
     prev_left_[k] = left;
     prev_right_[k] = right;

@@ -9,6 +9,7 @@
 #include <memory>
 #include <opencv2/imgcodecs.hpp>
 
+#include "markcell/common/log_escape.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/rig/render.hpp"
 #include "markcell/rig/panel.hpp"
@@ -84,7 +85,7 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
       std::cerr << "markcell select-mfs: --image " << image << ": cannot read it as an image\n";
       return kExitConfig;
     }
-    std::vector<Eigen::Vector2d> px;
+    std::vector<vision::MfPick> px;
     if (positions.empty()) {  // the window: the engineer clicks them
       try {
         const auto chosen = select_mfs_window(img, "markcell select-mfs: " + panel, snap, std::cout);
@@ -100,16 +101,22 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
       }
     }
     for (const auto& p : positions) {
+      // X,Y or X,Y,KIND (corner, hole; without it, whichever is under the point).
       double x = 0, y = 0;
-      char comma = 0;
-      if (std::sscanf(p.c_str(), "%lf%c%lf", &x, &comma, &y) != 3 || comma != ',') {
-        std::cerr << "markcell select-mfs: --mf '" << p << "': expected X,Y in pixels\n";
+      char comma = 0, rest[16] = {};
+      const int n = std::sscanf(p.c_str(), "%lf%c%lf,%15s", &x, &comma, &y, rest);
+      const std::string kind = rest;
+      if (n < 3 || comma != ',' || (n == 4 && kind != "corner" && kind != "hole") ||
+          (n == 3 && p.find(',', p.find(',') + 1) != std::string::npos)) {
+        std::cerr << "markcell select-mfs: --mf '" << escape_log(p) << "': expected X,Y or X,Y,corner or X,Y,hole in pixels\n";
         return kExitConfig;
       }
-      px.emplace_back(x, y);
+      px.push_back({{x, y}, kind == "hole" ? vision::MfKindRequest::kHole
+                            : kind == "corner" ? vision::MfKindRequest::kCorner
+                                               : vision::MfKindRequest::kAuto});
+      clicked.emplace_back(x, y);
     }
     try {
-      if (!positions.empty()) clicked = px;
       model = vision::make_panel_type(panel, img, px, snap, search_x, search_y);
     } catch (const std::exception& e) {
       std::cerr << "markcell select-mfs: " << e.what() << "\n";
@@ -120,7 +127,9 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
   std::cout << "panel type '" << model.name << "': " << model.count() << " macro-features\n";
   for (int i = 0; i < model.count(); ++i) {
     const Eigen::Vector2d& p = model.mfs[static_cast<std::size_t>(i)].reference_px;
-    std::printf("  MF %2d at (%.2f, %.2f) px", i + 1, p.x(), p.y());
+    const auto& mf = model.mfs[static_cast<std::size_t>(i)];
+    std::printf("  MF %2d %-6s at (%.2f, %.2f) px", i + 1, std::string(vision::to_string(mf.kind)).c_str(), p.x(), p.y());
+    if (mf.kind == vision::MfKind::kHole) std::printf(", radius %.2f px", mf.hole_radius_px);
     // How far each MF moved from the position given (snapped, then refined).
     if (static_cast<std::size_t>(i) < clicked.size())
       std::printf(", %.2f px from (%.2f, %.2f)", (p - clicked[static_cast<std::size_t>(i)]).norm(),
@@ -272,7 +281,8 @@ void add_tool_commands(CLI::App& app, Commands& out) {
   select_mfs->add_option("--image", o->mf_image, "Reference image of the left camera (with --from-scenario: where to write it)");
   select_mfs->add_option("--panel", o->mf_panel, "Panel type name (as in the configuration's panel_types)");
   select_mfs->add_option("--out", o->mf_out, "Panel type file to write")->required();
-  select_mfs->add_option("--mf", o->mf_positions, "Headless: an MF at X,Y pixels (repeat, in order)");
+  select_mfs->add_option("--mf", o->mf_positions,
+                         "Headless: an MF at X,Y pixels, or X,Y,corner / X,Y,hole for that kind (repeat, in order)");
   select_mfs->add_option("--snap", o->mf_snap, "Snap each MF to the strongest Shi-Tomasi corner within this many pixels; an MF that would end farther from its click is refused")->check(CLI::Range(0, 20));
   select_mfs->add_option("--search-x", o->mf_search_x, "How far (px) a new panel may sit from the reference along x")->check(CLI::Range(0, 2000));
   select_mfs->add_option("--search-y", o->mf_search_y, "... and along y")->check(CLI::Range(0, 2000));

@@ -20,10 +20,11 @@ struct Selection {
   int snap_radius = 0;
   std::ostream* log = nullptr;
   std::vector<Eigen::Vector2d> mfs;
+  std::vector<vision::MfKind> kinds;  // one per MF
   int selected = -1;
   int dragging = -1;
   Eigen::Vector2d drag_from = Eigen::Vector2d::Zero();
-  std::string message = "click on a corner to add a macro-feature";
+  std::string message = "click on a corner or inside a hole to add a macro-feature";
   bool dirty = true;
 
   int nearest(const Eigen::Vector2d& p) const {
@@ -65,8 +66,10 @@ struct Selection {
       return;
     }
     mfs.push_back(r.p);
+    kinds.push_back(r.kind);
     selected = static_cast<int>(mfs.size()) - 1;
-    say("MF " + std::to_string(mfs.size()) + " added at " + at(r.p) + ", " + px(r.moved_px) + " from the click");
+    say("MF " + std::to_string(mfs.size()) + " (" + std::string(vision::to_string(r.kind)) + ") added at " + at(r.p) + ", " +
+        px(r.moved_px) + " from the click");
   }
   void release(const Eigen::Vector2d& p) {
     if (dragging < 0) return;
@@ -74,7 +77,9 @@ struct Selection {
     if ((p - drag_from).norm() > 1.0) {
       if (const vision::SnapResult r = vision::snap_macro_feature(*gray, p, snap_radius); r.ok()) {
         mf = r.p;
-        say("MF " + std::to_string(dragging + 1) + " moved to " + at(r.p) + ", " + px(r.moved_px) + " from the release");
+        kinds[static_cast<std::size_t>(dragging)] = r.kind;
+        say("MF " + std::to_string(dragging + 1) + " (" + std::string(vision::to_string(r.kind)) + ") moved to " + at(r.p) +
+            ", " + px(r.moved_px) + " from the release");
       } else {
         mf = drag_from;
         say(r.problem + ": MF " + std::to_string(dragging + 1) + " stays at " + at(drag_from));
@@ -91,6 +96,7 @@ struct Selection {
       return;
     }
     mfs.erase(mfs.begin() + selected);
+    kinds.erase(kinds.begin() + selected);
     say("MF " + std::to_string(selected + 1) + " deleted; " + std::to_string(mfs.size()) + " left");
     selected = mfs.empty() ? -1 : static_cast<int>(mfs.size()) - 1;
   }
@@ -112,7 +118,8 @@ void draw(const Selection& s, cv::Mat& canvas) {
   for (std::size_t i = 0; i < s.mfs.size(); ++i) {
     const cv::Point c(static_cast<int>(std::lround(s.mfs[i].x())), static_cast<int>(std::lround(s.mfs[i].y())));
     const cv::Scalar colour = static_cast<int>(i) == s.selected ? cv::Scalar(0, 255, 255) : cv::Scalar(0, 220, 0);
-    cv::circle(canvas, c, 6, colour, 1, cv::LINE_AA);
+    if (i < s.kinds.size() && s.kinds[i] == vision::MfKind::kHole) cv::drawMarker(canvas, c, colour, cv::MARKER_CROSS, 12, 1);
+    else cv::circle(canvas, c, 6, colour, 1, cv::LINE_AA);
     cv::putText(canvas, std::to_string(i + 1), c + cv::Point(8, -8), cv::FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv::LINE_AA);
   }
   cv::rectangle(canvas, cv::Rect(0, 0, canvas.cols, 36), cv::Scalar(0, 0, 0), cv::FILLED);
@@ -123,7 +130,7 @@ void draw(const Selection& s, cv::Mat& canvas) {
 
 }  // namespace
 
-std::optional<std::vector<Eigen::Vector2d>> select_mfs_window(const cv::Mat& reference_left, const std::string& title,
+std::optional<std::vector<vision::MfPick>> select_mfs_window(const cv::Mat& reference_left, const std::string& title,
                                                               int snap_radius, std::ostream& log) {
   const char* display = std::getenv("DISPLAY");
   if (display == nullptr || *display == '\0')
@@ -166,7 +173,10 @@ std::optional<std::vector<Eigen::Vector2d>> select_mfs_window(const cv::Mat& ref
       }
       cv::destroyWindow(title);
       log << "saved " << s.mfs.size() << " macro-features" << std::endl;
-      return s.mfs;
+      std::vector<vision::MfPick> picks;
+      for (std::size_t i = 0; i < s.mfs.size(); ++i)
+        picks.push_back({s.mfs[i], s.kinds[i] == vision::MfKind::kHole ? vision::MfKindRequest::kHole : vision::MfKindRequest::kCorner});
+      return picks;
     }
   }
 }

@@ -25,6 +25,7 @@
 #include "markcell/common/param.hpp"
 #include "markcell/common/time.hpp"
 #include "markcell/msg/pose_estimate.hpp"
+#include "markcell/vision/hole_fit.hpp"
 #include "markcell/vision/optical_flow.hpp"
 #include "markcell/vision/stereo_rig.hpp"
 
@@ -39,6 +40,18 @@ using msg::to_string;
 
 inline constexpr int kTemplateRadius = 7;  // 15x15 template patches
 
+// What an MF is on the panel: a corner (of the outline, a cut-out, a character line's
+// end), refined as a Shi-Tomasi corner; or a round or oval hole's centre, refined by an
+// ellipse fitted to its edge (hole_fit.hpp) in each view.
+enum class MfKind : std::uint8_t { kCorner, kHole };
+std::string_view to_string(MfKind k);
+// What select-mfs is asked for at a click: a corner, a hole, or whichever is there.
+enum class MfKindRequest : std::uint8_t { kAuto, kCorner, kHole };
+struct MfPick {
+  Eigen::Vector2d px = Eigen::Vector2d::Zero();
+  MfKindRequest kind = MfKindRequest::kAuto;
+};
+
 // A panel type's MFs as the installation engineer picked them on a reference image of
 // the left camera (markcell select-mfs), with their template patches.
 struct PanelTypeModel {
@@ -47,6 +60,8 @@ struct PanelTypeModel {
   int search_x = 160, search_y = 40;  // half range of the panel's shift at re-initialisation, px
   struct Mf {
     Eigen::Vector2d reference_px = Eigen::Vector2d::Zero();  // on the reference image
+    MfKind kind = MfKind::kCorner;
+    double hole_radius_px = 0;  // a hole's mean semi-axis on the reference image (its rays' reach follows)
     Patch template_patch;  // level 0
     Patch coarse_template;  // at the coarse search level
   };
@@ -60,24 +75,38 @@ inline constexpr int kCoarseLevel = 2;
 // at most snap_limit_px(snap_radius) from the click: a corner farther away is another
 // feature than the one clicked (a round hole's rim beside its centre), refused with both
 // positions, never taken without a word.
+//
+// A hole: its edge searched on rays from the click out to the snap radius (at least 14
+// px), its fitted centre may likewise end at most snap_limit_px from the click, and it
+// must fit the template (a radius of at most kMaxHoleMfRadiusPx). Asked for neither
+// kind, a click inside a clean hole's edge (at least 3/4 of the rays meet it, 0.2 px
+// rms) is a hole, anything else a corner.
+inline constexpr double kMaxHoleMfRadiusPx = kTemplateRadius - 1;
+// A corner's least Shi-Tomasi score (smaller eigenvalue of the 5x5 gradient matrix per
+// pixel, grey^2): e-coat's texture and the sensor's noise score about 1, an edge turning
+// between panel and background hundreds.
+inline constexpr double kMinCornerStrength = 20;
 struct SnapResult {
   Eigen::Vector2d p = Eigen::Vector2d::Zero();  // where the MF goes
   double moved_px = 0;                          // from the click
+  MfKind kind = MfKind::kCorner;
+  double hole_radius_px = 0;                    // a hole's
   std::string problem;                          // empty: usable; else why not
   bool ok() const { return problem.empty(); }
 };
-SnapResult snap_macro_feature(const cv::Mat& reference_left, const Eigen::Vector2d& clicked, int snap_radius);
+SnapResult snap_macro_feature(const cv::Mat& reference_left, const Eigen::Vector2d& clicked, int snap_radius,
+                              MfKindRequest kind = MfKindRequest::kAuto);
 // The snap radius, or 1 px with none (the sub-pixel refinement's own allowance).
 double snap_limit_px(int snap_radius);
 
 // Builds a model from a reference image and MF positions, each through
 // snap_macro_feature. Throws naming the MF and its SnapResult's problem.
-PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left,
-                               const std::vector<Eigen::Vector2d>& positions, int snap_radius, int search_x,
-                               int search_y);
+PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference_left, const std::vector<MfPick>& picks,
+                               int snap_radius, int search_x, int search_y);
 // OpenCV FileStorage YAML: panel_type, image_width, image_height, search_x_px,
-// search_y_px, macro_features (Nx2 px), templates and coarse_templates (N rows of
-// patch values). Errors name the file and the key.
+// search_y_px, macro_features (Nx2 px), kinds (N of corner, hole; absent: all corners),
+// hole_radius_px (N, 0 for a corner), templates and coarse_templates (N rows of patch
+// values). Errors name the file and the key.
 void save_panel_type(const std::string& path, const PanelTypeModel& model);
 PanelTypeModel load_panel_type(const std::string& path);
 
@@ -146,7 +175,10 @@ class PanelTracker {
   void reinitialise();
   void track();
   bool find_right(int mf, const Eigen::Vector2d& left, Eigen::Vector2d& right) const;
-  bool verify_pair(const Eigen::Vector2d& left, const Eigen::Vector2d& right) const;
+  bool verify_pair(int mf, const Eigen::Vector2d& left, const Eigen::Vector2d& right) const;
+  // The MF's sub-pixel position near `p` in `image`, as its kind is found: a corner, or a
+  // hole's fitted centre (within its radius of `p`).
+  bool refine(int mf, const Pyramid& image, Eigen::Vector2d& p) const;
   void fit_pose();
   void reacquire();
 

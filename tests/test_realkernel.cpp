@@ -509,6 +509,15 @@ RealReplay replay_on_real_devices(const test::TempDir& tmp, const std::string& c
     REQUIRE(r.exit_code == 0);
     json = test::read_file(out + "/report.json");
     const double late = test::json_number(json, "peer_late_ticks", "peer_late_ticks");
+    // The emulator can also stall the guest for a second or more at once (seen once in
+    // CI: the vision task "ran" 298 ms, the arm's heartbeat went unheard past its 1 s
+    // timeout, the cell stopped safely before the panel): replayed once more; a second
+    // time it is a failure, not a skip.
+    const bool stalled = json.find("heartbeat_lost") != std::string::npos;
+    if (stalled && late <= kStarved && attempt == 1) {
+      WARN("the guest stalled long enough for the arm link's heartbeat to be lost: replaying once more");
+      continue;
+    }
     if (late <= kStarved) break;
     WARN("the emulator starved the guest (the rig peer began " << late << " ticks late, above " << kStarved << ")");
     if (attempt == 2) {

@@ -58,12 +58,29 @@ Panel load_panel(const std::string& path) {
   need("macro_features_panel", "each macro-feature's position on the panel, metres") >> mfs;
   if (mfs.cols != 3 || mfs.rows < 3 || mfs.type() != CV_64F)
     throw std::runtime_error(path + ": macro_features_panel must be an Nx3 double matrix (metres), N >= 3");
+  // A hole MF (the tracker's `kinds`) is the centre of a hole: no material there, its rim
+  // around it (a hole the tracker can follow is at most about 16 mm in radius).
+  const cv::FileNode kinds = fs["kinds"];
+  const auto is_hole = [&](int i) {
+    return kinds.isSeq() && i < static_cast<int>(kinds.size()) && kinds[i].isString() && static_cast<std::string>(kinds[i]) == "hole";
+  };
+  constexpr double kHoleRimMax = 0.03;
   for (int i = 0; i < mfs.rows; ++i) {
     const Eigen::Vector3d m(mfs.at<double>(i, 0), mfs.at<double>(i, 1), mfs.at<double>(i, 2));
     // An MF is a point of the surface: on a corner or a rim the vertical ray may just miss,
     // so the nearest vertex is the reference.
     double nearest = 1e9;
     for (const auto& v : p.surface->mesh().vertices) nearest = std::min(nearest, (v - m).norm());
+    if (is_hole(i)) {
+      if (!m.allFinite() || p.solid(m.x(), m.y()) || nearest > kHoleRimMax)
+        throw std::runtime_error(path + ": macro_features_panel row " + std::to_string(i + 1) + " (" + std::to_string(m.x()) +
+                                 ", " + std::to_string(m.y()) + ", " + std::to_string(m.z()) + ") is a hole's centre (kinds) but " +
+                                 (p.solid(m.x(), m.y()) ? std::string("the mesh has material there")
+                                                        : "its nearest vertex is " + std::to_string(nearest * 1000) +
+                                                              " mm away: no hole's rim around it"));
+      p.macro_features.push_back(m);
+      continue;
+    }
     if (!m.allFinite() || nearest > 1e-3)
       throw std::runtime_error(path + ": macro_features_panel row " + std::to_string(i + 1) + " (" + std::to_string(m.x()) + ", " +
                                std::to_string(m.y()) + ", " + std::to_string(m.z()) + ") is " + std::to_string(nearest * 1000) +

@@ -286,6 +286,8 @@ PanelTracker::PanelTracker(const StereoRig& rig, const PanelTypeModel& model, co
                                        << rig.height());
   MARKCELL_THROW_UNLESS(params.min_macro_features >= 3 && params.min_macro_features <= model.count(),
                         "min_macro_features=" << params.min_macro_features << " with " << model.count() << " MFs");
+  for (int i = 0; i < model.count(); ++i)
+    hole_params_[static_cast<std::size_t>(i)] = hole_params(model.mfs[static_cast<std::size_t>(i)].hole_radius_px);
 }
 
 void PanelTracker::reset() {
@@ -328,7 +330,7 @@ const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const c
 bool PanelTracker::refine(int mf, const Pyramid& image, Eigen::Vector2d& p) const {
   const PanelTypeModel::Mf& m = model_.mfs[static_cast<std::size_t>(mf)];
   if (m.kind == MfKind::kCorner) return refine_corner(image, p, params_.corner_radius);
-  const HoleFit fit = fit_hole(image, p, hole_params(m.hole_radius_px));
+  const HoleFit fit = fit_hole(image, p, hole_params_[static_cast<std::size_t>(mf)]);
   if (!fit.ok() || (fit.centre - p).norm() > m.hole_radius_px) return false;
   p = fit.centre;
   return true;

@@ -206,6 +206,7 @@ class PanelTracker {
   std::array<bool, kMaxMacroFeatures> tracked_{};  // has a left/right position from the previous frame
   std::array<Eigen::Vector2d, kMaxMacroFeatures> prev_left_{}, prev_right_{}, velocity_{};
   std::array<Patch, kMaxMacroFeatures> patch_{};   // left template per MF, taken at re-initialisation
+  std::array<HoleFitParams, kMaxMacroFeatures> hole_params_{};  // each hole MF's rays, from its radius (start-up)
 };
 
 }  // namespace markcell::vision

@@ -238,14 +238,21 @@ TEST_CASE("the camera_trigger task: a rising edge on the trigger line every othe
   CHECK_FALSE(cell.sim_gpio()->physical(static_cast<int>(LineRole::kCameraTrigger)));
 }
 
-TEST_CASE("the command log: a CAN frame, a serial frame off the wire, the valve's edges, and what a full log could not keep") {
+TEST_CASE("the command logs: CAN frames in candump -L, a serial frame off the wire, the valve's edges, what a full log could not keep") {
   sim::CommandLog log;
-  log.reserve(4);
+  log.reserve(6);
   drivers::CanFrame can;
   can.id = 0x202;
   can.len = 3;
   can.data[0] = 0x01, can.data[1] = 0xAB, can.data[2] = 0xFF;
   log.frame(millis(1500), can);
+  drivers::CanFrame fd;  // CAN FD, 29-bit id: candump's "ID##F" and eight digits
+  fd.id = 0x1234567;
+  fd.extended = true;
+  fd.fd = true;
+  fd.len = 2;
+  fd.data[0] = 0x5A, fd.data[1] = 0x00;
+  log.frame(millis(1600), fd);
   // A command as the controller puts it on the line, decoded as the rig's arm decodes it.
   drivers::ArmCommand command;
   command.mode = drivers::ArmMode::kMove;
@@ -259,8 +266,9 @@ TEST_CASE("the command log: a CAN frame, a serial frame off the wire, the valve'
   REQUIRE(decoder.next(frame) == drivers::serial::Decoder::Result::kFrame);
   log.frame(millis(2250), frame);
   log.valve(seconds(3), true);
-  log.valve(seconds(3) + 200, false);
-  log.valve(seconds(4), true);  // a fifth entry: not kept, counted
+  log.valve(seconds(3) + 2500, false);  // microseconds: 2.5 us is written 2
+  log.valve(millis(500), true);         // before the epoch by half a second
+  log.valve(seconds(4), true);          // a seventh entry: not kept, counted
   // The serial line's payload is the wire's bytes between the header and the CRC.
   std::string payload;
   char hex[3];
@@ -269,9 +277,13 @@ TEST_CASE("the command log: a CAN frame, a serial frame off the wire, the valve'
     payload += hex;
   }
   REQUIRE(payload.size() == 2 * drivers::serial::kCommandSize);
-  CHECK(log.text(seconds(1)) == "(0.500000000) can 202#01ABFF\n"
-                                "(1.250000000) serial 01#2A#" + payload + "\n"
-                                "(2.000000000) valve open\n"
-                                "(2.000000200) valve close\n"
-                                "# 1 entries not kept: the log was full\n");
+  const sim::CommandLogText text = log.text(seconds(1), "vcan3");
+  CHECK(text.can == "(946684800.500000) vcan3 202#01ABFF\n"
+                    "(946684800.600000) vcan3 01234567##05A00\n");
+  CHECK(text.serial == "(946684801.250000) serial 01#2A#" + payload + "\n"
+                       "# 1 entries not kept: the log was full\n");
+  CHECK(text.valve == "(946684802.000000) valve open\n"
+                      "(946684802.000002) valve close\n"
+                      "(946684799.500000) valve open\n"
+                      "# 1 entries not kept: the log was full\n");
 }

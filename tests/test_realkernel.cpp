@@ -540,10 +540,12 @@ RealReplay replay_on_real_devices(const test::TempDir& tmp, const std::string& c
   CHECK(test::json_number(json, "defects", "marked") == planned);
   CHECK(test::json_number(json, "false_sprays", "false_sprays") == 0);
   CHECK(test::json_number(json, "marking_error_mm", "max") < 10.0);  // the control issue's limit
-  // One valve opening (read back from gpio-sim) per spray in the peer's command log.
-  const std::string log = test::read_file(out + "/commands.log");
+  // One valve opening (read back from gpio-sim) per spray in the peer's valve log.
+  const std::string valve = test::read_file(out + "/valve.log");
   std::size_t opens = 0;
-  for (auto at = log.find("valve open"); at != std::string::npos; at = log.find("valve open", at + 1)) ++opens;
+  for (auto at = valve.find("valve open"); at != std::string::npos; at = valve.find("valve open", at + 1)) ++opens;
+  // The arm's frames: can.log (candump -L) or, for a serial arm, serial.log.
+  const std::string log = test::read_file(out + (std::filesystem::exists(out + "/serial.log") ? "/serial.log" : "/can.log"));
   CHECK(static_cast<double>(opens) == test::json_number(json, "defects", "sprayed"));
   // The run's figures in the test's output, for the record.
   std::printf("guest: replayed on %s: %.0f of %.0f marked, marking error max %.1f mm, %.2f s per defect, the rig peer %.0f "
@@ -563,8 +565,9 @@ TEST_CASE("a rig recording replayed in real time on gpio-sim and vcan: every din
                                           "real: gpio chip " + env("MARKCELL_GPIO_CHIP") + ", CAN " + env("MARKCELL_VCAN"));
   // The controller's set-points to the arm's node over vcan, as the peer's socket heard them.
   const auto node = host::load_config(run.config, host::task_catalog()).arm.can.link.node_id;
-  char set_point[16];
-  std::snprintf(set_point, sizeof set_point, ") can %03X#", canopen::kTargetPositionId + static_cast<unsigned>(node));
+  char set_point[40];  // candump -L: "(SECONDS.MICROS) IFACE ID#DATA", on the configured interface
+  std::snprintf(set_point, sizeof set_point, ") %s %03X#", env("MARKCELL_VCAN").c_str(),
+                canopen::kTargetPositionId + static_cast<unsigned>(node));
   CHECK(run.command_log.find(set_point) != std::string::npos);
 }
 

@@ -3,8 +3,9 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <random>
 #include <stdexcept>
+
+#include "markcell/common/splitmix.hpp"
 
 namespace markcell::rig {
 
@@ -18,14 +19,13 @@ LineMotion::LineMotion(const SpeedProfile& speed, const LinePath& path, Nanos du
   speed_.resize(steps + 1);
   // Fluctuation: a sum of four slow sines with seeded frequencies and phases, scaled so
   // it can never leave the band.
-  std::mt19937_64 rng(speed.seed);
-  std::uniform_real_distribution<double> freq(0.02, 0.25), phase(0.0, 2 * M_PI), amp(0.5, 1.0);
+  SplitMix rng{speed.seed};  // the project's generator: the same motion everywhere
   std::array<double, 4> f{}, ph{}, a{};
   double total = 0;
   for (std::size_t i = 0; i < 4; ++i) {
-    f[i] = freq(rng);
-    ph[i] = phase(rng);
-    a[i] = amp(rng);
+    f[i] = rng.uniform(0.02, 0.25);
+    ph[i] = rng.uniform(0.0, 2 * M_PI);
+    a[i] = rng.uniform(0.5, 1.0);
     total += a[i];
   }
   const double mid = (speed.min_speed + speed.max_speed) / 2, half = (speed.max_speed - speed.min_speed) / 2;

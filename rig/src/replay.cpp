@@ -272,7 +272,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   if (overlay != nullptr) run.arm = overlay->stats();
   run.frames_skipped = source.skipped();
   run.timing_report = cell.executive().timing_report();
-  run.command_log = peer ? peer->command_log_text(start) : cell.command_log_text();
+  run.command_log = peer ? peer->command_log_text(start, cfg.arm.can.interface) : cell.command_log_text();
   if (peer) {
     run.peer_late_ticks = peer->late_ticks();
     if (!peer->error().empty()) run.faults.push_back("rig peer: " + peer->error());

@@ -378,9 +378,18 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
     std::fprintf(stderr, "markcell: plots of %s: %s\n", report.recording.c_str(), e.what());
   }
 
-  const std::string commands = (dir / "commands.log").string();
-  std::ofstream(commands) << main.command_log;
-  files.push_back(commands);
+  // The command logs (sim/command_log.hpp): can.log in candump -L and valve.log always,
+  // serial.log for a serial arm. A previous run's files in the folder go first, so none
+  // is left beside this run's.
+  for (const char* name : {"can.log", "serial.log", "valve.log", "commands.log"}) std::filesystem::remove(dir / name);
+  const auto write_log = [&](const char* name, const std::string& text) {
+    const std::string file = (dir / name).string();
+    std::ofstream(file) << text;
+    files.push_back(file);
+  };
+  if (!main.command_log.serial.empty()) write_log("serial.log", main.command_log.serial);
+  if (!main.command_log.can.empty() || main.command_log.serial.empty()) write_log("can.log", main.command_log.can);
+  write_log("valve.log", main.command_log.valve);
 
   const std::string json = (dir / "report.json").string();
   Json doc{{"scenario", report.scenario},

@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <random>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -13,6 +12,7 @@
 
 #include "markcell/common/bounded_file.hpp"
 #include "markcell/common/confined_path.hpp"
+#include "markcell/common/splitmix.hpp"
 #include "markcell/vision/recording.hpp"
 
 namespace markcell::rig {
@@ -230,11 +230,15 @@ Scenario parse_scenario(const std::string& path, const std::string& text) {
 void draw_board_offset(Scenario& s) {
   // The camera where the configured X_Base_CamR is not quite: a translation within the
   // offset in each axis and a turn of half to all of the angle about a random axis.
-  std::mt19937_64 rng(s.seed * 7919 + 17);
-  std::uniform_real_distribution<double> t(-s.board_offset_m, s.board_offset_m), a(-1.0, 1.0);
-  const Eigen::Vector3d axis = Eigen::Vector3d(a(rng), a(rng), a(rng)).normalized();
-  s.X_CamRnominal_CamR.linear() = Eigen::AngleAxisd(s.board_angle_rad * (0.5 + 0.5 * std::abs(a(rng))), axis).toRotationMatrix();
-  s.X_CamRnominal_CamR.translation() = Eigen::Vector3d(t(rng), t(rng), t(rng));
+  // Each draw in a statement of its own (argument evaluation order is unspecified) from
+  // the project's generator (docs/determinism.md).
+  SplitMix rng{s.seed * 7919 + 17};
+  Eigen::Vector3d axis, offset;
+  for (int i = 0; i < 3; ++i) axis[i] = rng.uniform(-1.0, 1.0);
+  const double share = 0.5 + 0.5 * std::abs(rng.uniform(-1.0, 1.0));
+  for (int i = 0; i < 3; ++i) offset[i] = rng.uniform(-s.board_offset_m, s.board_offset_m);
+  s.X_CamRnominal_CamR.linear() = Eigen::AngleAxisd(s.board_angle_rad * share, axis.normalized()).toRotationMatrix();
+  s.X_CamRnominal_CamR.translation() = offset;
 }
 
 Scenario load_scenario(const std::string& path) {

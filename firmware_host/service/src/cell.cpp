@@ -370,7 +370,9 @@ void Cell::use_frame_source(std::unique_ptr<vision::FrameSource> source) {
   vision_->source = frame_source_.get();
 }
 
-std::string Cell::command_log_text() const { return sim_world_ ? sim_world_->log.text() : std::string(); }
+sim::CommandLogText Cell::command_log_text() const {
+  return sim_world_ ? sim_world_->log.text(0, config_.arm.can.interface) : sim::CommandLogText{};
+}
 
 Cell::~Cell() {
   if (started_ && !shut_down_) shutdown(control::FaultCode::kShutdown, "cell", "destroyed without shutdown");

@@ -51,7 +51,7 @@ class HilPeer {
   // After stop(): each valve opening with the arm's tool pose then, ...
   const sim::NozzleWitness& nozzle() const { return nozzle_; }
   // ... the commands the controller sent and the valve's edges, times from `epoch`, ...
-  std::string command_log_text(Nanos epoch) const { return log_.text(epoch); }
+  sim::CommandLogText command_log_text(Nanos epoch, std::string_view interface) const { return log_.text(epoch, interface); }
   // ... ticks that began more than a period late, whether the priority was refused, and
   // what stopped the thread early (empty when nothing did).
   std::uint64_t late_ticks() const { return late_ticks_; }

@@ -110,7 +110,7 @@ struct PredictorRun {
   std::vector<control::PredictionSample> samples;        // every panel's, in order
   std::vector<control::PanelFrameRecord> panel_frames;   // every panel's (its first 16 each)
   std::vector<TimedPoint> truth_samples;        // the same defect's true position at each sample
-  std::string command_log;                      // every command to the arm and the valve, simulated time
+  sim::CommandLogText command_log;              // every command to the arm and the valve edge (can/serial/valve.log)
   int stopped_by = 0;                           // the signal that ended the run early (0: it ran to its end)
   Nanos stopped_at = 0;                         // when, from the run's start
 };

@@ -103,8 +103,9 @@ class Cell {
   drivers::SimCanArm* sim_arm() { return sim_world_ ? sim_world_->arm.get() : nullptr; }
   // Valve openings seen by the simulated world (null unless the arm is simulated).
   const sim::NozzleWitness* sim_nozzle() const { return sim_world_ ? &sim_world_->nozzle : nullptr; }
-  // The rig's command log: every CAN frame the controller sends to the simulated arm and
-  // every valve opening and closing, with simulated times (candump -L style lines).
+  // The rig's command logs: every CAN frame the controller sends to the simulated arm
+  // (candump -L, on the configured interface's name) and every valve opening and closing,
+  // with simulated times (sim/command_log.hpp).
   // Storage for `capacity` entries is taken here, before start(); a full log counts
   // what it could not keep. Simulated arm only.
   void enable_command_log(std::size_t capacity);
@@ -122,7 +123,7 @@ class Cell {
   // (null unless the arm is simulated). One reader: whoever watches the world from the
   // vision lane (the rig drawing the arm into the frames).
   TripleBuffer<drivers::ToolPose>* sim_tool_poses() { return sim_world_ ? &sim_world_->tool_poses : nullptr; }
-  std::string command_log_text() const;
+  sim::CommandLogText command_log_text() const;
   // The marking sequence and the vision task (null when not in the task table).
   control::MarkingSequence* marking() { return marking_.get(); }
   vision::FrameSource* frame_source() { return frame_source_.get(); }

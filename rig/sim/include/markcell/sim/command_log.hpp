@@ -1,12 +1,15 @@
 #pragma once
 // The rig's command log: every frame the controller sends to the arm and every valve
-// opening and closing, with their times, one candump -L style line each:
-//   (S.NNNNNNNNN) can 202#88130000...        a CAN frame: id#data (id##0data for CAN FD)
-//   (S.NNNNNNNNN) serial 01#05#02A0...       a serial frame: type#seq#payload (serial_protocol.hpp)
-//   (S.NNNNNNNNN) valve open | valve close
-// The simulated world keeps it in simulated time (the same recording and configuration
-// give the same log, byte for byte); the real-device replay's peer keeps it on the real
-// clock.
+// opening and closing, with their times, written as three files (docs/rig.md, "The
+// command logs"):
+//   can.log     candump -L, which can-utils' log2asc and python-can read:
+//               (SECONDS.MICROS) IFACE 202#88130000...   (ID##FDATA for a CAN FD frame)
+//   serial.log  the serial arm's frames: (SECONDS.MICROS) serial 01#05#02A0... (type#seq#payload)
+//   valve.log   (SECONDS.MICROS) valve open | valve close
+// Times are the run's own from its start (simulated time in the simulated world, the real
+// clock in the real-device replay) on a fixed epoch, kEpochSeconds (2000-01-01 00:00:00
+// UTC): the same recording and configuration give the same files, byte for byte, and a
+// tool that prints dates prints that day.
 //
 // Storage for a fixed number of entries is taken once (reserve); a full log counts what it
 // could not keep, so recording an entry never allocates. A log never reserved keeps
@@ -14,6 +17,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "markcell/common/time.hpp"
@@ -21,6 +25,10 @@
 #include "markcell/drivers/serial_protocol.hpp"
 
 namespace markcell::sim {
+
+struct CommandLogText {
+  std::string can, serial, valve;
+};
 
 class CommandLog {
  public:
@@ -35,8 +43,12 @@ class CommandLog {
     record({time, Kind::kSerial, bytes});
   }
   void valve(Nanos time, bool open) noexcept { record({time, open ? Kind::kValveOpen : Kind::kValveClose, {}}); }
-  // One line per entry, times from `epoch`; a last comment line when entries were lost.
-  std::string text(Nanos epoch = 0) const;
+  // Simulated (or run) time 0 is written as this many seconds since 1970.
+  static constexpr long long kEpochSeconds = 946684800;
+  // The three files' text, times from `epoch` on kEpochSeconds, CAN frames on `interface`.
+  // Entries lost to a full log are named on a last comment line of valve.log and of the
+  // arm's file (candump -L readers skip lines that do not begin with a time).
+  CommandLogText text(Nanos epoch, std::string_view interface) const;
 
  private:
   enum class Kind : std::uint8_t { kCan, kSerial, kValveOpen, kValveClose };

@@ -40,6 +40,14 @@ inline std::string example_config_with(const test::TempDir& dir, const std::vect
   return dir.write("cell.yaml", test::example_config_text(edits));
 }
 
+// A command log's time "SECONDS.MICROS" (docs/rig.md, "The command logs") as seconds
+// from the run's start: the logs' epoch, 946684800 s (2000-01-01 UTC), is the run's 0.
+// Whole seconds and the fraction apart, so microseconds stay exact in a double.
+inline double log_seconds(const std::string& stamp) {
+  const auto dot = stamp.find('.');
+  return static_cast<double>(std::stoll(stamp.substr(0, dot)) - 946684800) + std::stod("0" + stamp.substr(dot));
+}
+
 // `BINARY sim ARGS -q --one-predictor` into FOLDER next to markcell, generated once per
 // build (CTest runs each case in its own process: they share it under a file lock, and a
 // newer markcell or BINARY regenerates it).

@@ -242,10 +242,7 @@ TEST_CASE("can.log is candump -L: log2asc, python-can and canmatrix read it as m
   }
   CHECK(headers == 1);
   CHECK(frames == static_cast<int>(lines.size()));
-  const auto seconds = [](const std::string& t) {  // from the logs' epoch
-    return static_cast<double>(std::stoll(t.substr(0, t.find('.'))) - 946684800) + std::stod("0" + t.substr(t.find('.')));
-  };
-  CHECK(last == Approx(seconds(lines.back().time) - seconds(lines.front().time)).margin(1e-6));
+  CHECK(last == Approx(log_seconds(lines.back().time) - log_seconds(lines.front().time)).margin(1e-6));
 }
 
 TEST_CASE("line-fast: the arm waits at home for refits to place every ding, then pose, prediction and pace meet the targets") {
@@ -652,12 +649,8 @@ TEST_CASE("replay with a scripted PLC: panel present dropping mid-pulse closes t
   const auto close = log.find(") valve close");
   REQUIRE(open != std::string::npos);
   REQUIRE(close != std::string::npos);
-  // "(SECONDS.MICROS)": seconds on the logs' epoch (946684800, 2000-01-01) from the run's start.
-  const auto stamp = [&](std::size_t at) {
-    const std::string t = log.substr(log.rfind('(', at) + 1, at - log.rfind('(', at) - 1);
-    const auto dot = t.find('.');
-    return static_cast<double>(std::stoll(t.substr(0, dot)) - 946684800) + std::stod("0" + t.substr(dot));
-  };
+  // The "(SECONDS.MICROS)" before the entry at `at`, from the run's start.
+  const auto stamp = [&](std::size_t at) { return log_seconds(log.substr(log.rfind('(', at) + 1, at - log.rfind('(', at) - 1)); };
   REQUIRE(stamp(open) > 0.64);
   REQUIRE(stamp(open) < 0.72);
   CHECK(stamp(close) > 0.720);

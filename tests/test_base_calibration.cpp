@@ -10,6 +10,7 @@
 #include <opencv2/core/eigen.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "draw.hpp"
 #include "markcell/control/base_calibration.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "markcell/tools/base_calibration_run.hpp"
@@ -41,12 +42,12 @@ std::vector<control::BoardObservation> synthetic(const Eigen::Isometry3d& X_Base
   for (int k = 0; k < poses; ++k) {
     control::BoardObservation o;
     o.name = "pose " + std::to_string(k + 1);
-    o.X_Base_Tool = pose(0.2 + 0.2 * u(rng), 0.4 + 0.2 * u(rng), 1.0 + 0.2 * u(rng), Eigen::Vector3d(u(rng), u(rng), u(rng)),
-                         0.3 * u(rng)) *
+    const Eigen::Matrix<double, 7, 1> d = test::draw(rng, u, u, u, u, u, u, u);
+    o.X_Base_Tool = pose(0.2 + 0.2 * d(0), 0.4 + 0.2 * d(1), 1.0 + 0.2 * d(2), Eigen::Vector3d(d(3), d(4), d(5)), 0.3 * d(6)) *
                     pose(0, 0, 0, Eigen::Vector3d::UnitY(), -M_PI / 2);
     for (const auto& c : control::board_corners(board)) {
       const Eigen::Vector3d p = X_Base_CamR.inverse() * o.X_Base_Tool * X_Tool_Board * c;
-      o.corners_CamR.push_back(p + Eigen::Vector3d(n(rng), n(rng), n(rng)));
+      o.corners_CamR.push_back(p + test::draw(rng, n, n, n));
     }
     obs.push_back(std::move(o));
   }

@@ -10,6 +10,7 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
+#include "draw.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/control/intercalibration.hpp"
 #include "markcell/control/planner.hpp"
@@ -194,32 +195,41 @@ TEST_CASE("two-frame predictor: applying the last motion twice, as the paper") {
 }
 
 TEST_CASE("Kalman predictor: constant speed with a turn, through noise, predicts half a second ahead within a millimetre") {
-  PosePredictor predictor(PredictorParams{});
+  // Over many noise realisations, not one: a single run's error is one draw of a spread
+  // about as wide as the bound, and which draw a seed gives is the generator's business.
   const Eigen::Vector3d anchor(-0.2, 0.0, 3.1);
-  predictor.reset(anchor);
-  std::mt19937 rng(9);
-  std::normal_distribution<double> lat(0, 0.0004), dep(0, 0.002), rot(0, 0.001);
+  const Eigen::Vector3d q = anchor + Eigen::Vector3d(0.4, 0.1, 0);  // 40 cm off the anchor
   auto truth = [&](double t) { return pose(0, 0.01 * t, 0, {0.015 * t, 0, 0.002 * t}); };
+  constexpr int kRuns = 100;
+  Eigen::Vector3d sum_sq = Eigen::Vector3d::Zero();
+  double sum_sq_q = 0;
   std::size_t allocations = 0;
-  for (int k = 0; k <= 300; ++k) {  // 10 s at 30 Hz
-    const double t = k / 30.0;
-    Eigen::Isometry3d m = truth(t);
-    m.linear() = (Eigen::AngleAxisd(rot(rng), Eigen::Vector3d::UnitY()) * m.linear()).eval();
-    m.translation() += Eigen::Vector3d(lat(rng), lat(rng), dep(rng)) - (m.linear() - truth(t).linear()) * anchor;
-    test::AllocationGuard guard;
-    predictor.update(static_cast<Nanos>(std::llround(t * 1e9)), m);
-    allocations += guard.allocations();
+  for (int run = 0; run < kRuns; ++run) {
+    PosePredictor predictor(PredictorParams{});
+    predictor.reset(anchor);
+    std::mt19937 rng(static_cast<unsigned>(9 + run));
+    std::normal_distribution<double> lat(0, 0.0004), dep(0, 0.002), rot(0, 0.001);
+    for (int k = 0; k <= 300; ++k) {  // 10 s at 30 Hz
+      const double t = k / 30.0;
+      Eigen::Isometry3d m = truth(t);
+      m.linear() = (Eigen::AngleAxisd(rot(rng), Eigen::Vector3d::UnitY()) * m.linear()).eval();
+      m.translation() += test::draw(rng, lat, lat, dep) - (m.linear() - truth(t).linear()) * anchor;
+      test::AllocationGuard guard;
+      predictor.update(static_cast<Nanos>(std::llround(t * 1e9)), m);
+      allocations += guard.allocations();
+    }
+    const Eigen::Isometry3d X = predictor.predict(millis(10500));
+    sum_sq += (X * anchor - truth(10.5) * anchor).cwiseAbs2();
+    sum_sq_q += (X * q - truth(10.5) * q).squaredNorm();
   }
   CHECK(allocations == 0);
-  const Eigen::Isometry3d X = predictor.predict(millis(10500));
-  const Eigen::Vector3d err = X * anchor - truth(10.5) * anchor;
-  INFO("prediction error at the anchor: " << err.transpose() * 1000 << " mm");
-  CHECK(std::abs(err.x()) < 0.001);
-  CHECK(std::abs(err.y()) < 0.001);
-  CHECK(std::abs(err.z()) < 0.002);
-  // A point 40 cm off the anchor rotates with the panel.
-  const Eigen::Vector3d q = anchor + Eigen::Vector3d(0.4, 0.1, 0);
-  CHECK((X * q - truth(10.5) * q).norm() < 0.003);
+  const Eigen::Vector3d rms = (sum_sq / kRuns).cwiseSqrt();
+  const double rms_q = std::sqrt(sum_sq_q / kRuns);
+  INFO("rms prediction error at the anchor over " << kRuns << " runs: " << rms.transpose() * 1000 << " mm; 40 cm off it: " << rms_q * 1000 << " mm");
+  CHECK(rms.x() < 0.001);
+  CHECK(rms.y() < 0.001);
+  CHECK(rms.z() < 0.002);
+  CHECK(rms_q < 0.003);  // a point off the anchor rotates with the panel
 }
 
 TEST_CASE("Kalman predictor: poses fitted to MFs on one line leave the rotation about it to the filter") {

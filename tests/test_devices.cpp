@@ -96,7 +96,7 @@ TEST_CASE("plc_io: ready follows cycle enable, e-stop safe-stops and raises the 
   CHECK(plc.io_errors() == 0);
 }
 
-TEST_CASE("watchdog device: feeds, magic close, and a clear error for a non-watchdog") {
+TEST_CASE("watchdog device: feeds, and the magic close disarms it") {
   test::TempDir dir;
   const std::string fifo = (dir.path() / "watchdog").string();
   REQUIRE(mkfifo(fifo.c_str(), 0600) == 0);
@@ -117,7 +117,13 @@ TEST_CASE("watchdog device: feeds, magic close, and a clear error for a non-watc
   CHECK(buf[1] == '\0');
   CHECK(buf[2] == 'V');  // the magic close disarms it on an orderly stop
   close(reader);
+}
 
+// [kernel-ioctl]: the error is the kernel's answer to a watchdog ioctl on a plain file
+// (ENOTTY); qemu-user answers ioctls it does not emulate with ENOSYS itself, so the arm64
+// suite under qemu leaves this case out (tests/CMakeLists.txt).
+TEST_CASE("watchdog device: a clear error for a file that is not a watchdog", "[kernel-ioctl]") {
+  test::TempDir dir;
   const std::string plain = dir.write("not-a-watchdog", "");
   WatchdogDevice wrong({plain, 10});
   CHECK_THROWS_WITH(wrong.activate(), "watchdog device '" + plain +

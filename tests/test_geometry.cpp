@@ -8,6 +8,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 
+#include "draw.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/common/geometry.hpp"
 #include "markcell/common/splitmix.hpp"
@@ -26,8 +27,9 @@ namespace {
 Eigen::Isometry3d random_pose(std::mt19937& rng, double translation) {
   std::uniform_real_distribution<double> u(-1, 1);
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-  X.linear() = Eigen::Quaterniond(u(rng), u(rng), u(rng), u(rng)).normalized().toRotationMatrix();
-  X.translation() = Eigen::Vector3d(u(rng), u(rng), u(rng)) * translation;
+  const Eigen::Vector4d q = test::draw(rng, u, u, u, u);
+  X.linear() = Eigen::Quaterniond(q(0), q(1), q(2), q(3)).normalized().toRotationMatrix();
+  X.translation() = test::draw(rng, u, u, u) * translation;
   return X;
 }
 
@@ -48,7 +50,7 @@ TEST_CASE("triangulation recovers points from their exact projections") {
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> xy(-0.7, 0.7), z(2.6, 3.6);
   for (int i = 0; i < 100; ++i) {
-    const Eigen::Vector3d p(xy(rng), xy(rng), z(rng));
+    const Eigen::Vector3d p = test::draw(rng, xy, xy, z);
     const Eigen::Vector2d xl = project_point(rig.calibration.left, rig.calibration.X_CamR_CamL.inverse() * p);
     const Eigen::Vector2d xr = project_point(rig.calibration.right, p);
     CHECK((triangulate(rig.P_left, rig.P_right, xl, xr) - p).norm() < 1e-9);
@@ -64,11 +66,11 @@ TEST_CASE("triangulation agrees with cv::triangulatePoints on noisy corresponden
   cv::eigen2cv(Eigen::Matrix<double, 3, 4>(rig.P_left), P1);
   cv::eigen2cv(Eigen::Matrix<double, 3, 4>(rig.P_right), P2);
   for (int i = 0; i < 100; ++i) {
-    const Eigen::Vector3d p(xy(rng), xy(rng), z(rng));
+    const Eigen::Vector3d p = test::draw(rng, xy, xy, z);
     Eigen::Vector2d xl = project_point(rig.calibration.left, rig.calibration.X_CamR_CamL.inverse() * p);
     Eigen::Vector2d xr = project_point(rig.calibration.right, p);
-    xl += Eigen::Vector2d(noise(rng), noise(rng));
-    xr += Eigen::Vector2d(noise(rng), noise(rng));
+    xl += test::draw(rng, noise, noise);
+    xr += test::draw(rng, noise, noise);
     cv::Mat X;
     cv::triangulatePoints(P1, P2, cv::Mat(cv::Point2d(xl.x(), xl.y())), cv::Mat(cv::Point2d(xr.x(), xr.y())), X);
     X.convertTo(X, CV_64F);
@@ -86,9 +88,9 @@ TEST_CASE("the rigid fit recovers known transforms and agrees with Eigen::umeyam
     const Eigen::Isometry3d X = random_pose(rng, 2.0);
     std::vector<Eigen::Vector3d> a, b, b_noisy;
     for (int i = 0; i < 10; ++i) {
-      a.emplace_back(u(rng), u(rng), u(rng));
+      a.push_back(test::draw(rng, u, u, u));
       b.push_back(X * a.back());
-      b_noisy.push_back(b.back() + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+      b_noisy.push_back(b.back() + test::draw(rng, noise, noise, noise));
     }
     const RigidFit exact = fit_rigid(a, b);
     REQUIRE(exact.valid);
@@ -135,7 +137,10 @@ TEST_CASE("the robust fit finds the transform and the outliers among ten macro-f
     for (const auto& p : a) b.push_back(X * p);
     // Three wrong correspondences (a mismatched corner, an occluded one re-found elsewhere).
     const std::array<std::size_t, 3> wrong = {1, 4, 8};
-    for (std::size_t w : wrong) b[w] += Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized() * (0.05 + std::abs(u(rng)));
+    for (std::size_t w : wrong) {
+      const Eigen::Vector3d direction = test::draw(rng, u, u, u);
+      b[w] += direction.normalized() * (0.05 + std::abs(u(rng)));
+    }
     std::array<bool, 10> inlier{};
     const RigidFit fit = fit_rigid_robust(a, b, RobustFitOptions{0.005, 300, 1 + static_cast<std::uint64_t>(trial)}, inlier);
     REQUIRE(fit.valid);

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "draw.hpp"
 #include "alloc_guard.hpp"
 #include "markcell/rig/line_motion.hpp"
 #include "markcell/rig/scenario.hpp"
@@ -89,7 +90,7 @@ TEST_CASE("stereo rig: undistortion and rectification as OpenCV's, epipolar geom
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> xy(-0.5, 0.5), z(2.5, 3.8);
   for (int i = 0; i < 100; ++i) {
-    const Eigen::Vector3d p(xy(rng) - 0.2, xy(rng), z(rng));
+    const Eigen::Vector3d p = test::draw(rng, xy, xy, z) - Eigen::Vector3d(0.2, 0, 0);
     const Eigen::Vector2d l = rig.project(Camera::kLeft, p), r = rig.project(Camera::kRight, p);
     cv::Mat K;
     cv::eigen2cv(c.left.K, K);
@@ -107,7 +108,7 @@ TEST_CASE("stereo rig: undistortion and rectification as OpenCV's, epipolar geom
   }
   // Rectified: both views of a point on one row, as cv::undistortPoints with R1/P1 has it.
   for (int i = 0; i < 20; ++i) {
-    const Eigen::Vector3d p(xy(rng) - 0.2, xy(rng), z(rng));
+    const Eigen::Vector3d p = test::draw(rng, xy, xy, z) - Eigen::Vector3d(0.2, 0, 0);
     const Eigen::Vector2d l = rig.rectify(Camera::kLeft, rig.project(Camera::kLeft, p));
     const Eigen::Vector2d r = rig.rectify(Camera::kRight, rig.project(Camera::kRight, p));
     CHECK(std::abs(l.y() - r.y()) < 1e-6);

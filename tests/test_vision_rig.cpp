@@ -15,6 +15,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "draw.hpp"
 #include "sheet_mesh.hpp"
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/recording.hpp"
@@ -74,7 +75,7 @@ TEST_CASE("the camera model projects as OpenCV's projectPoints, distortion inclu
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> xy(-0.7, 0.7), z(2.5, 3.5);
   for (int i = 0; i < 200; ++i) {
-    const Eigen::Vector3d p(xy(rng), xy(rng), z(rng));
+    const Eigen::Vector3d p = test::draw(rng, xy, xy, z);
     const Eigen::Vector2d ours = project_point(c, p);
     const cv::Point2d ref = cv_project(c, Eigen::Isometry3d::Identity(), p);
     CHECK(std::abs(ours.x() - ref.x) < 1e-9);
@@ -382,9 +383,10 @@ TEST_CASE("calibrate-stereo recovers a known rig from rendered chessboard views"
   const double square = 0.05;
   for (int i = 0; i < 14; ++i) {
     Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-    X.linear() = (Eigen::AngleAxisd(tilt(rng), Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(tilt(rng), Eigen::Vector3d::UnitY()))
+    const Eigen::Vector2d tilts = test::draw(rng, tilt, tilt);
+    X.linear() = (Eigen::AngleAxisd(tilts(0), Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(tilts(1), Eigen::Vector3d::UnitY()))
                      .toRotationMatrix() * Eigen::Vector3d(1, -1, -1).asDiagonal();
-    const Eigen::Vector3d centre(x(rng), y(rng), z(rng));
+    const Eigen::Vector3d centre = test::draw(rng, x, y, z);
     X.translation() = centre - X.linear() * Eigen::Vector3d((cols - 1) * square / 2, (rows - 1) * square / 2, 0);
     cv::Mat left, right;
     r.render_board(cols, rows, square, X, static_cast<std::uint64_t>(i), left, right);

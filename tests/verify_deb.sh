@@ -2,13 +2,18 @@
 # Builds the .deb from a build folder (cpack), checks its file list, its conffiles and
 # maintainer scripts, and runs the unit inside it through verify_service_unit.sh (with
 # the packaged binary).
+#
+#   verify_deb.sh BUILD ARCH [EMULATOR...]   ARCH: the package's (amd64, arm64); the
+#                                            packaged binary runs under EMULATOR when given
 set -euo pipefail
-build=$1
+build=$1 arch=$2
+shift 2
+emulator=("$@")
 here=$(cd "$(dirname "$0")" && pwd)
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 (cd "$build" && cpack -G DEB -B "$work/out" >"$work/cpack.log" 2>&1) || { cat "$work/cpack.log"; exit 1; }
-deb=$(ls "$work"/out/markcell_*.deb)
+deb=$(ls "$work"/out/markcell_*_"$arch".deb) || { ls "$work"/out; echo "no markcell_*_$arch.deb"; exit 1; }
 echo "built $(basename "$deb")"
 dpkg-deb -c "$deb" | awk '{print $6}' | sed 's|^\./|/|' > "$work/files"
 fail=0
@@ -23,8 +28,10 @@ dpkg-deb -e "$deb" "$work/control"
 grep -qx /etc/markcell/cell.yaml "$work/control/conffiles" || { echo "cell.yaml is not a conffile"; fail=1; }
 grep -q "adduser --system --group" "$work/control/postinst" || { echo "postinst does not create the system user"; fail=1; }
 grep -q "^Depends:.*libgpiod" "$work/control/control" || { echo "Depends lacks the shared libraries"; fail=1; }
+grep -qx "Architecture: $arch" "$work/control/control" || { echo "not Architecture: $arch"; fail=1; }
+grep "^Depends:" "$work/control/control"
 [ "$fail" = 0 ] || exit 1
 dpkg-deb -x "$deb" "$work/root"
-"$work/root/usr/bin/markcell" check-config "$work/root/etc/markcell/cell.yaml"
+${emulator[@]+"${emulator[@]}"} "$work/root/usr/bin/markcell" check-config "$work/root/etc/markcell/cell.yaml"
 "$here/verify_service_unit.sh" "$work/root/usr/lib/systemd/system/markcell.service" "$work/root/usr/bin/markcell"
 echo "the package: file list, conffiles, postinst and unit OK"

@@ -296,8 +296,8 @@ TEST_CASE("the cell with devices.cameras.source aravis: the vision task tracks l
   FakeCamera fake_right("127.0.0.2", "MCR01");
   auto config = host::load_config(test::source_path("config/cell.example.yaml"), host::task_catalog());
   config.cameras.source = host::CameraSource::kAravis;
-  config.cameras.left_id = "127.0.0.1";
-  config.cameras.right_id = "127.0.0.2";
+  config.cameras.left.id = "127.0.0.1";
+  config.cameras.right.id = "127.0.0.2";
   config.cameras.trigger = host::CameraTrigger::kSoftware;
   config.watchdog.systemd = false;
   config.executive.lock_memory = false;
@@ -324,6 +324,68 @@ TEST_CASE("a camera that is not there is a clear error naming it") {
   CHECK_FALSE(none.active());
   FrameView f;
   CHECK(none.next(f, 0) == FrameStatus::kNotActive);
+}
+
+// The camera's registers as Aravis's own command-line tool reads them, in its own GVCP
+// session once markcell's is closed: an independent reader of what markcell set.
+std::string arv_tool_read(const std::string& address, const std::string& features) {
+  const auto r = test::run_command("arv-tool-0.8 -a " + address + " control " + features + " 2>&1");
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  return r.output;
+}
+
+TEST_CASE("each camera as integrators set it: trigger source and activation, packet size and delay, read back by arv-tool") {
+  FakeCamera fake("127.0.0.1", "MCL01");
+  CameraSettings s = settings("127.0.0.1");
+  s.trigger = TriggerMode::kHardware;
+  s.trigger_source = "Line0";
+  s.trigger_activation = TriggerActivation::kRisingEdge;
+  s.packet_size = 1500;  // the fake camera starts at 1400
+  s.packet_delay_ticks = 250;
+  s.exposure_us = 2500;
+  {
+    AravisCamera camera(s);
+    camera.activate();
+    CHECK(camera.active());
+  }
+  const std::string read =
+      arv_tool_read("127.0.0.1", "GevSCPSPacketSize GevSCPD TriggerMode TriggerSource TriggerActivation ExposureTimeAbs");
+  CHECK_THAT(read, Catch::Contains("GevSCPSPacketSize = 1500"));
+  CHECK_THAT(read, Catch::Contains("GevSCPD = 250"));
+  CHECK_THAT(read, Catch::Contains("TriggerMode = On"));
+  CHECK_THAT(read, Catch::Contains("TriggerSource = Line0"));
+  CHECK_THAT(read, Catch::Contains("TriggerActivation = RisingEdge"));
+  CHECK_THAT(read, Catch::Contains("ExposureTimeAbs = 2500"));
+
+  // What the camera does not offer is refused before a frame is taken, naming the camera,
+  // the value and what it offers; the camera is left closed.
+  const auto refused = [&](CameraSettings bad) {
+    AravisCamera camera(std::move(bad));
+    std::string what;
+    try {
+      camera.activate();
+    } catch (const std::runtime_error& e) {
+      what = e.what();
+    }
+    CHECK_FALSE(camera.active());
+    return what;
+  };
+  CameraSettings wrong_line = s;
+  wrong_line.trigger_source = "Line3";
+  CHECK(refused(wrong_line) == "camera '127.0.0.1': trigger source 'Line3' is not one it offers (Line0, Software)");
+  CameraSettings wrong_edge = s;
+  wrong_edge.trigger_activation = TriggerActivation::kFallingEdge;
+  CHECK(refused(wrong_edge) == "camera '127.0.0.1': TriggerActivation 'FallingEdge' is not one it offers (RisingEdge)");
+  CameraSettings too_big = s;
+  too_big.packet_size = 20000;
+  CHECK(refused(too_big) == "camera '127.0.0.1': packet size 20000 (GevSCPSPacketSize): it takes 220 to 16404 in steps of 4");
+  CameraSettings off_step = s;
+  off_step.packet_size = 1402;
+  CHECK(refused(off_step) == "camera '127.0.0.1': packet size 1402 (GevSCPSPacketSize): it takes 220 to 16404 in steps of 4");
+  CameraSettings too_slow = s;
+  too_slow.packet_delay_ticks = 5000;
+  CHECK(refused(too_slow) == "camera '127.0.0.1': inter-packet delay 5000 (GevSCPD): it takes 0 to 1000");
 }
 
 int main(int argc, char** argv) {

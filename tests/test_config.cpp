@@ -51,7 +51,7 @@ devices:
       plc_done: {line: D}
       plc_fault: {line: F}
   arm: {transport: simulated, limits: {reach_m: 1.6, max_tcp_speed_m_s: 1, max_tcp_accel_m_s2: 4, home_m: [0.3, 0, 0.6]}}
-  cameras: {source: simulated, width: 640, height: 480, fps: 30, exposure_us: 4000, trigger: hardware}
+  cameras: {source: simulated, width: 640, height: 480, fps: 30, trigger: hardware}
 calibration:
   stereo: stereo.yaml
   base: base.yaml
@@ -388,6 +388,61 @@ TEST_CASE_METHOD(Fixture, "every error is reported, not only the first") {
   CHECK(e[2].path == "devices.cameras.fps");
   CHECK(e[3].path == "panel_types.door.colour");
   REQUIRE_THROWS_AS(load_config(file(), task_catalog()), ConfigInvalid);
+}
+
+TEST_CASE_METHOD(Fixture, "cameras: the pair's trigger, each camera's own settings under left and right, refused with why") {
+  const std::string pair = "cameras: {source: simulated, width: 640, height: 480, fps: 30, trigger: hardware}";
+  const auto cfg = load_config_text(
+      replace(kValid, pair,
+              "cameras: {source: aravis, width: 640, height: 480, fps: 30, trigger: hardware, trigger_source: Line2, "
+              "trigger_activation: falling_edge,\n"
+              "    left: {id: cam-L, exposure_us: 3000, gain_db: 6, packet_size: 8192, packet_delay_ticks: 1200},\n"
+              "    right: {id: cam-R, exposure_us: 5000}}"),
+      file(), task_catalog());
+  // What each camera is opened with: the pair's settings and its own (defaults where not written).
+  const drivers::CameraSettings left = camera_settings(cfg.cameras, cfg.cameras.left);
+  const drivers::CameraSettings right = camera_settings(cfg.cameras, cfg.cameras.right);
+  CHECK(left.id == "cam-L");
+  CHECK(left.exposure_us == 3000);
+  CHECK(left.gain_db == 6);
+  CHECK(left.packet_size == 8192);
+  CHECK(left.packet_delay_ticks == 1200);
+  CHECK(right.id == "cam-R");
+  CHECK(right.exposure_us == 5000);
+  CHECK(right.gain_db == 0);
+  CHECK(right.packet_size == 0);
+  CHECK(right.packet_delay_ticks == 0);
+  for (const auto& s : {left, right}) {
+    CHECK(s.width == 640);
+    CHECK(s.trigger == drivers::TriggerMode::kHardware);
+    CHECK(s.trigger_source == "Line2");
+    CHECK(s.trigger_activation == drivers::TriggerActivation::kFallingEdge);
+  }
+
+  // Refused, each at its key: no left id with aravis, the same id twice, an exposure
+  // longer than a frame, an activation GenICam does not have, a packet bigger than UDP's,
+  // and the pair-level exposure of earlier configurations (each camera has its own).
+  const auto e = check(replace(
+      kValid, pair,
+      "cameras: {source: aravis, width: 640, height: 480, fps: 30, trigger: hardware, trigger_activation: rising,\n"
+      "    exposure_us: 4000, left: {packet_size: 70000}, right: {id: cam-R, exposure_us: 40000}}"));
+  const auto m = messages(e);
+  for (const auto& x : m) UNSCOPED_INFO(x);
+  REQUIRE(e.size() == 5);
+  CHECK(e[0].path == "devices.cameras.exposure_us");
+  CHECK(e[1].path == "devices.cameras.trigger_activation");
+  CHECK(e[1].message == "expected one of: rising_edge, falling_edge, any_edge, level_high, level_low, got \"rising\"");
+  CHECK(e[2].path == "devices.cameras.left.packet_size");
+  CHECK(e[3].path == "devices.cameras.left");
+  CHECK(e[3].message == "missing required key 'left.id' (source: aravis): the left camera's Aravis device id");
+  CHECK(e[4].path == "devices.cameras.right");
+  CHECK(e[4].message == "exposure_us 40000 is longer than a frame at fps 30 (33333 us)");
+  const auto same = check(replace(kValid, pair,
+                                  "cameras: {source: aravis, width: 640, height: 480, fps: 30, trigger: hardware,\n"
+                                  "    left: {id: cam-A}, right: {id: cam-A}}"));
+  REQUIRE(same.size() == 1);
+  CHECK(same[0].path == "devices.cameras.right");
+  CHECK(same[0].message == "right.id must differ from left.id 'cam-A'");
 }
 
 TEST_CASE_METHOD(Fixture, "the results file: resolved against the config's folder, its folder must exist") {

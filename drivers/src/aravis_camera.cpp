@@ -33,7 +33,71 @@ void check(GError*& error, const std::string& id, const char* what) {
   throw std::runtime_error(message);
 }
 
+// The names a GenICam enumeration offers (TriggerSource, TriggerActivation), as "A, B, C";
+// `has` says whether `want` is among them.
+std::string offered(ArvCamera* c, const char* feature, const std::string& want, bool& has, const std::string& id) {
+  GError* error = nullptr;
+  guint n = 0;
+  const char** names = arv_camera_dup_available_enumerations_as_strings(c, feature, &n, &error);
+  check(error, id, (std::string("list its ") + feature + " values").c_str());
+  std::string list;
+  has = false;
+  for (guint i = 0; i < n; ++i) {
+    list += (i > 0 ? ", " : "") + std::string(names[i]);
+    if (want == names[i]) has = true;
+  }
+  g_free(static_cast<gpointer>(names));
+  return list;
+}
+
+// Sets an enumeration feature to one of the values the camera offers, or says which it offers.
+void set_offered(ArvCamera* c, const char* feature, const std::string& value, const std::string& id) {
+  bool has = false;
+  const std::string list = offered(c, feature, value, has, id);
+  if (!has)
+    throw std::runtime_error("camera '" + id + "': " + feature + " '" + value + "' is not one it offers (" + list + ")");
+  GError* error = nullptr;
+  arv_camera_set_string(c, feature, value.c_str(), &error);
+  check(error, id, (std::string("set ") + feature).c_str());
+}
+
+// Sets an integer feature the camera declares a range (and step) for, and reads it back.
+// The range is checked here: Aravis writes whatever it is given, and a camera may clamp
+// or round it silently; a value outside, off the step or read back different is refused
+// with the numbers rather than run on a value nobody configured.
+void set_integer_exact(ArvCamera* c, const char* feature, gint64 value, const char* what, const std::string& id) {
+  const std::string named = "camera '" + id + "': " + what + " " + std::to_string(value) + " (" + feature + ")";
+  GError* error = nullptr;
+  gint64 lo = 0, hi = 0;
+  arv_camera_get_integer_bounds(c, feature, &lo, &hi, &error);
+  check(error, id, (std::string("read the range of ") + feature).c_str());
+  gint64 step = arv_camera_get_integer_increment(c, feature, &error);
+  if (error != nullptr) {  // no increment declared: any integer in the range
+    g_clear_error(&error);
+    step = 1;
+  }
+  if (value < lo || value > hi || (step > 1 && (value - lo) % step != 0))
+    throw std::runtime_error(named + ": it takes " + std::to_string(lo) + " to " + std::to_string(hi) +
+                             (step > 1 ? " in steps of " + std::to_string(step) : ""));
+  arv_camera_set_integer(c, feature, value, &error);
+  check(error, id, (std::string("set ") + feature).c_str());
+  const gint64 got = arv_camera_get_integer(c, feature, &error);
+  check(error, id, (std::string("read back ") + feature).c_str());
+  if (got != value) throw std::runtime_error(named + ": it gives " + std::to_string(got));
+}
+
 }  // namespace
+
+const char* genicam_name(TriggerActivation a) {
+  switch (a) {
+    case TriggerActivation::kRisingEdge: return "RisingEdge";
+    case TriggerActivation::kFallingEdge: return "FallingEdge";
+    case TriggerActivation::kAnyEdge: return "AnyEdge";
+    case TriggerActivation::kLevelHigh: return "LevelHigh";
+    case TriggerActivation::kLevelLow: return "LevelLow";
+  }
+  return "RisingEdge";
+}
 
 AravisCamera::AravisCamera(CameraSettings settings) : settings_(std::move(settings)) {}
 
@@ -67,10 +131,42 @@ void AravisCamera::activate() {
     }
     if (settings_.trigger == TriggerMode::kSoftware) {
       arv_camera_set_trigger(c, "Software", &error);
+      check(error, settings_.id, "set the software trigger");
     } else {
-      arv_camera_set_trigger(c, settings_.trigger_line.c_str(), &error);
+      // The source first checked against what the camera offers: Aravis would otherwise
+      // fail with GenICam's own words, or a camera without that line take another.
+      bool has = false;
+      const std::string sources = offered(c, "TriggerSource", settings_.trigger_source, has, settings_.id);
+      if (!has)
+        throw std::runtime_error("camera '" + settings_.id + "': trigger source '" + settings_.trigger_source +
+                                 "' is not one it offers (" + sources + ")");
+      // Trigger mode on for the frame start, the source, and a rising edge where it has
+      // TriggerActivation; then the configured activation.
+      arv_camera_set_trigger(c, settings_.trigger_source.c_str(), &error);
+      check(error, settings_.id, "set the hardware trigger");
+      const char* activation = genicam_name(settings_.trigger_activation);
+      if (arv_camera_is_feature_available(c, "TriggerActivation", nullptr)) {
+        set_offered(c, "TriggerActivation", activation, settings_.id);
+      } else if (settings_.trigger_activation != TriggerActivation::kRisingEdge) {
+        throw std::runtime_error("camera '" + settings_.id + "': it has no TriggerActivation, so it cannot be set to " +
+                                 activation + " (leave trigger_activation at rising_edge)");
+      }
     }
-    check(error, settings_.id, settings_.trigger == TriggerMode::kSoftware ? "set the software trigger" : "set the hardware trigger line");
+    // GigE Vision's stream settings, before the stream exists (the camera locks them while
+    // it streams). With a configured size, Aravis must not replace it with one it finds by
+    // probing the link: the integrator's figure stands, or the camera is refused.
+    const bool gige = arv_camera_is_gv_device(c);
+    if (settings_.packet_size > 0) {
+      if (!gige)
+        throw std::runtime_error("camera '" + settings_.id + "': packet_size is set, but it is not a GigE Vision camera");
+      arv_camera_gv_set_packet_size_adjustment(c, ARV_GV_PACKET_SIZE_ADJUSTMENT_NEVER);
+      set_integer_exact(c, "GevSCPSPacketSize", settings_.packet_size, "packet size", settings_.id);
+    }
+    if (gige && arv_camera_is_feature_available(c, "GevSCPD", nullptr)) {
+      set_integer_exact(c, "GevSCPD", settings_.packet_delay_ticks, "inter-packet delay", settings_.id);
+    } else if (settings_.packet_delay_ticks > 0) {
+      throw std::runtime_error("camera '" + settings_.id + "': packet_delay_ticks is set, but it has no GevSCPD");
+    }
     const guint payload = arv_camera_get_payload(c, &error);
     check(error, settings_.id, "read the payload size");
     ArvStream* s = arv_camera_create_stream(c, nullptr, nullptr, &error);

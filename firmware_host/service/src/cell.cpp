@@ -68,9 +68,9 @@ TaskTable task_catalog() {
   return kDecls;
 }
 
-drivers::CameraSettings camera_settings(const CameraConfig& c, const std::string& id) {
+drivers::CameraSettings camera_settings(const CameraConfig& c, const drivers::CameraUnitSettings& own) {
   drivers::CameraSettings s = c;  // what both cameras are set to ...
-  s.id = id;                      // ... and this one's id
+  s.set_own(own);                 // ... and this one's own settings
   return s;
 }
 
@@ -301,8 +301,8 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     }
     else if (config.cameras.source == CameraSource::kAravis)
       frame_source_ = std::make_unique<CameraFrameSource>(
-          std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.left_id)),
-          std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.right_id)),
+          std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.left)),
+          std::make_unique<drivers::AravisCamera>(camera_settings(config.cameras, config.cameras.right)),
           config.cameras.width, config.cameras.height, config.cameras.fps,
           config.cameras.trigger == CameraTrigger::kSoftware, config.cameras.latency, config.cameras.lost_after);
     vision_->source = frame_source_.get();

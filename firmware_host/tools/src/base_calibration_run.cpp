@@ -322,8 +322,8 @@ class LiveDevices final : public BaseCalibrationDevices {
  public:
   explicit LiveDevices(const CellConfig& config)
       : link_(make_arm_link(config.arm, bus_)),
-        left_(settings(config.cameras, config.cameras.left_id)),
-        right_(settings(config.cameras, config.cameras.right_id)),
+        left_(settings(config.cameras, config.cameras.left)),
+        right_(settings(config.cameras, config.cameras.right)),
         wait_(config.cameras.lost_after / 2) {
     left_.activate();
     right_.activate();
@@ -364,8 +364,8 @@ class LiveDevices final : public BaseCalibrationDevices {
 
  private:
   // calibrate-base triggers both cameras by software: it needs one pair per pose.
-  static drivers::CameraSettings settings(const CameraConfig& c, const std::string& id) {
-    drivers::CameraSettings s = camera_settings(c, id);
+  static drivers::CameraSettings settings(const CameraConfig& c, const drivers::CameraUnitSettings& own) {
+    drivers::CameraSettings s = camera_settings(c, own);
     s.trigger = drivers::TriggerMode::kSoftware;
     return s;
   }

@@ -13,10 +13,13 @@
 namespace markcell::host {
 
 RecordSummary record_stereo(const CellConfig& config, const RecordOptions& o, std::ostream* progress) {
-  const std::string left_id = o.left_id.empty() ? config.cameras.left_id : o.left_id;
-  const std::string right_id = o.right_id.empty() ? config.cameras.right_id : o.right_id;
+  drivers::CameraUnitSettings left_own = config.cameras.left, right_own = config.cameras.right;
+  if (!o.left_id.empty()) left_own.id = o.left_id;
+  if (!o.right_id.empty()) right_own.id = o.right_id;
+  const std::string& left_id = left_own.id;
+  const std::string& right_id = right_own.id;
   if (left_id.empty() || right_id.empty())
-    throw std::runtime_error(config.file + ": devices.cameras.left_id and right_id: record needs both cameras' ids (or --left/--right)");
+    throw std::runtime_error(config.file + ": devices.cameras.left.id and right.id: record needs both cameras' ids (or --left/--right)");
   namespace fs = std::filesystem;
   vision::RecordingManifest m;
   m.station = "marking";
@@ -29,7 +32,7 @@ RecordSummary record_stereo(const CellConfig& config, const RecordOptions& o, st
   if (!config.calibration.stereo.empty())
     fs::copy_file(config.calibration.stereo, fs::path(o.out) / "calibration.yaml", fs::copy_options::overwrite_existing);
 
-  drivers::AravisCamera left(camera_settings(config.cameras, left_id)), right(camera_settings(config.cameras, right_id));
+  drivers::AravisCamera left(camera_settings(config.cameras, left_own)), right(camera_settings(config.cameras, right_own));
   left.activate();
   right.activate();
   const Nanos period = static_cast<Nanos>(1e9 / config.cameras.fps);

@@ -3,9 +3,10 @@
 // two of them.
 //
 // A camera is opened by its Aravis device id or by its IP address, set to Mono8 at the
-// configured size, frame rate, exposure and gain, and triggered either by software or
-// by a hardware line (both cameras on the same trigger line expose at the same
-// instant). Frames come from a pool of buffers allocated at activation; next() hands
+// configured size, frame rate, exposure and gain, its GigE Vision packet size and
+// inter-packet delay, and triggered either by software or by a hardware line (both
+// cameras on the same trigger line expose at the same instant); what it is set to is
+// read back, and what it does not offer is refused naming the camera and what it offers. Frames come from a pool of buffers allocated at activation; next() hands
 // out one frame at a time and takes the previous one back. Lost and incomplete frames
 // are counted, and a camera that stops delivering is reported as lost.
 #include <atomic>
@@ -19,6 +20,37 @@ namespace markcell::drivers {
 
 enum class TriggerMode : std::uint8_t { kSoftware, kHardware };
 
+// GenICam's TriggerActivation: which edge or level of the trigger line starts an exposure
+// (a PLC or a light barrier may give either polarity).
+enum class TriggerActivation : std::uint8_t { kRisingEdge, kFallingEdge, kAnyEdge, kLevelHigh, kLevelLow };
+const char* genicam_name(TriggerActivation a);  // "RisingEdge", ...
+
+// What each camera of a pair is set to on its own. Two cameras see the panel from two
+// sides (exposure and gain differ), and share one link to the computer: their stream
+// packets must fit its MTU and, interleaved, not overrun the switch (an inter-packet delay
+// on each), as every GigE Vision maker's set-up guide asks.
+struct CameraUnitSettings {
+  std::string id;                // Aravis device id, or an IP address
+  double exposure_us = 4000.0;
+  double gain_db = 0.0;
+  int packet_size = 0;           // GevSCPSPacketSize: bytes per stream packet; 0 = as the camera has it
+  int packet_delay_ticks = 0;    // GevSCPD: the gap between stream packets, in the camera's timestamp ticks
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"id", Unit::kNone, 1, 255, "Aravis device id (arv-tool-0.8 lists them) or IP address; required with source: aravis"}, id);
+    v(Param{"exposure_us", Unit::kNone, 1.0, 1e6, "exposure time in microseconds"}, exposure_us);
+    v(Param{"gain_db", Unit::kNone, 0.0, 48.0, "analogue gain in dB"}, gain_db);
+    v(Param{"packet_size", Unit::kNone, 0, 65535,
+            "GigE Vision stream packet size in bytes (GevSCPSPacketSize); 0: as the camera has it; above 1500 needs jumbo frames on the link"},
+      packet_size);
+    v(Param{"packet_delay_ticks", Unit::kNone, 0, 2147483647,
+            "GigE Vision inter-packet delay (GevSCPD) in the camera's timestamp ticks; 0: none"},
+      packet_delay_ticks);
+  }
+};
+
+// One camera as the driver opens it: the pair's shared settings and its own.
 struct CameraSettings {
   std::string id;                  // Aravis device id, or an IP address
   int width = 640;
@@ -27,19 +59,37 @@ struct CameraSettings {
   double exposure_us = 4000.0;
   double gain_db = 0.0;
   TriggerMode trigger = TriggerMode::kHardware;
-  std::string trigger_line = "Line0";
+  std::string trigger_source = "Line0";  // GenICam TriggerSource of the hardware trigger
+  TriggerActivation trigger_activation = TriggerActivation::kRisingEdge;
+  int packet_size = 0;             // GevSCPSPacketSize; 0 = as the camera has it
+  int packet_delay_ticks = 0;      // GevSCPD
   int buffers = 8;
 
-  // The keys `devices.cameras` gives both cameras of the pair (the id is per camera).
+  // The keys `devices.cameras` gives both cameras of the pair (each camera's own are
+  // CameraUnitSettings's, under `left` and `right`).
   template <class V>
   void Visit(V& v) {
     v(Param{"width", Unit::kPixel, 16, 16384, "image width", true}, width);
     v(Param{"height", Unit::kPixel, 16, 16384, "image height", true}, height);
     v(Param{"fps", Unit::kNone, 0.1, 1000.0, "frames a second (free running) or the expected trigger rate", true}, fps);
-    v(Param{"exposure_us", Unit::kNone, 1.0, 1e6, "exposure time in microseconds", true}, exposure_us);
-    v(Param{"gain_db", Unit::kNone, 0.0, 48.0, "analogue gain in dB"}, gain_db);
     v(Param{"trigger", Unit::kNone, 0, 0, "hardware: both cameras on the trigger line; software", true},
       Choice<TriggerMode, 2>{trigger, {{{"software", TriggerMode::kSoftware}, {"hardware", TriggerMode::kHardware}}}});
+    v(Param{"trigger_source", Unit::kNone, 1, 64, "with trigger: hardware, the cameras' input the line is wired to (GenICam TriggerSource: Line0, Line1, ...)"},
+      trigger_source);
+    v(Param{"trigger_activation", Unit::kNone, 0, 0, "with trigger: hardware, what of the line starts an exposure (GenICam TriggerActivation)"},
+      Choice<TriggerActivation, 5>{trigger_activation,
+                                   {{{"rising_edge", TriggerActivation::kRisingEdge},
+                                     {"falling_edge", TriggerActivation::kFallingEdge},
+                                     {"any_edge", TriggerActivation::kAnyEdge},
+                                     {"level_high", TriggerActivation::kLevelHigh},
+                                     {"level_low", TriggerActivation::kLevelLow}}}});
+  }
+  void set_own(const CameraUnitSettings& own) {
+    id = own.id;
+    exposure_us = own.exposure_us;
+    gain_db = own.gain_db;
+    packet_size = own.packet_size;
+    packet_delay_ticks = own.packet_delay_ticks;
   }
 };
 

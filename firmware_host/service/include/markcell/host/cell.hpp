@@ -41,7 +41,7 @@ enum class ClockKind { kReal, kSimulated };
 drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm);
 // One camera's driver settings from the configuration's cameras section (the cell's
 // camera frame source, record and calibrate-base).
-drivers::CameraSettings camera_settings(const CameraConfig& cameras, const std::string& id);
+drivers::CameraSettings camera_settings(const CameraConfig& cameras, const drivers::CameraUnitSettings& own);
 // The planner's model of the arm (limits, reach, settle, pulse, defect timeout): the
 // marking sequence's plans and `markcell capacity` use the same.
 control::ArmTimingModel arm_timing_model(const CellConfig& config);

@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <span>
 #include <stdexcept>
 #include <string>
@@ -164,13 +165,14 @@ using CameraTrigger = drivers::TriggerMode;
 std::string_view to_string(CameraSource s);
 std::string_view to_string(CameraTrigger t);
 
-// `devices.cameras`: the pair's source and ids here, what both cameras are set to in the
-// driver's CameraSettings (its id and line left to the cell); `recording` is read by
+// `devices.cameras`: the pair's source, what both cameras are set to (the driver's
+// CameraSettings: size, rate, trigger), and each camera's own settings under `left` and
+// `right` (id, exposure, gain, GigE Vision packet size and delay); `recording` is read by
 // hand (a folder that must exist).
 struct CameraConfig : drivers::CameraSettings {
   CameraSource source = CameraSource::kSimulated;
-  std::string left_id;
-  std::string right_id;
+  drivers::CameraUnitSettings left;
+  drivers::CameraUnitSettings right;
   Nanos latency = millis(15);  // exposure to frame in memory (transfer); replayed frames arrive this late
   Nanos lost_after = millis(1500);  // a live camera with no frame for this long is reported lost and reconnected
   std::string recording;       // source: recording; absolute
@@ -182,9 +184,11 @@ struct CameraConfig : drivers::CameraSettings {
                               {{{"simulated", CameraSource::kSimulated},
                                 {"aravis", CameraSource::kAravis},
                                 {"recording", CameraSource::kRecording}}}});
-    v(Param{"left_id", Unit::kNone, 1, 255, "the left camera's Aravis device id (required with aravis)"}, left_id);
-    v(Param{"right_id", Unit::kNone, 1, 255, "the right camera's Aravis device id (required with aravis)"}, right_id);
     CameraSettings::Visit(v);
+    v(Param{"left", Unit::kNone, 0, 0, "the left camera's own settings (required with source: aravis)"},
+      Section<drivers::CameraUnitSettings>{left});
+    v(Param{"right", Unit::kNone, 0, 0, "the right camera's own settings (required with source: aravis)"},
+      Section<drivers::CameraUnitSettings>{right});
     v(Param{"latency_ms", Unit::kMillisecond, 0, 1000, "exposure to frame in memory; replayed frames arrive this late"},
       latency);
     v(Param{"lost_after_ms", Unit::kMillisecond, 100, 60'000, "a live camera with no frame this long is lost"},
@@ -193,12 +197,18 @@ struct CameraConfig : drivers::CameraSettings {
   template <class Report>
   void validate(Report&& report) const {
     if (source == CameraSource::kAravis) {
-      if (left_id.empty()) report("left_id", "missing required key 'left_id' (source: aravis)");
-      if (right_id.empty()) report("right_id", "missing required key 'right_id' (source: aravis)");
+      if (left.id.empty()) report("left", "missing required key 'left.id' (source: aravis): the left camera's Aravis device id");
+      if (right.id.empty()) report("right", "missing required key 'right.id' (source: aravis): the right camera's Aravis device id");
     }
-    if (!left_id.empty() && left_id == right_id) report("right_id", "right_id must differ from left_id '" + left_id + "'");
-    if (fps > 0 && exposure_us > 1e6 / fps)
-      report("exposure_us", "exposure longer than the frame period at the configured fps");
+    if (!left.id.empty() && left.id == right.id) report("right", "right.id must differ from left.id '" + left.id + "'");
+    for (const auto* own : {&left, &right}) {
+      if (fps > 0 && own->exposure_us > 1e6 / fps) {
+        char message[160];
+        std::snprintf(message, sizeof message, "exposure_us %g is longer than a frame at fps %g (%.0f us)", own->exposure_us,
+                      fps, 1e6 / fps);
+        report(own == &left ? "left" : "right", message);
+      }
+    }
   }
 };
 

@@ -33,32 +33,22 @@ void check(GError*& error, const std::string& id, const char* what) {
   throw std::runtime_error(message);
 }
 
-// The names a GenICam enumeration offers (TriggerSource, TriggerActivation), as "A, B, C";
-// `has` says whether `want` is among them.
-std::string offered(ArvCamera* c, const char* feature, const std::string& want, bool& has, const std::string& id) {
+// Refuses `value` for an enumeration feature (TriggerSource, TriggerActivation) the camera
+// does not offer, naming what it offers ("A, B, C"); `label` names the setting.
+void require_offered(ArvCamera* c, const char* feature, const char* label, const std::string& value, const std::string& id) {
   GError* error = nullptr;
   guint n = 0;
   const char** names = arv_camera_dup_available_enumerations_as_strings(c, feature, &n, &error);
   check(error, id, (std::string("list its ") + feature + " values").c_str());
   std::string list;
-  has = false;
+  bool has = false;
   for (guint i = 0; i < n; ++i) {
     list += (i > 0 ? ", " : "") + std::string(names[i]);
-    if (want == names[i]) has = true;
+    if (value == names[i]) has = true;
   }
   g_free(static_cast<gpointer>(names));
-  return list;
-}
-
-// Sets an enumeration feature to one of the values the camera offers, or says which it offers.
-void set_offered(ArvCamera* c, const char* feature, const std::string& value, const std::string& id) {
-  bool has = false;
-  const std::string list = offered(c, feature, value, has, id);
   if (!has)
-    throw std::runtime_error("camera '" + id + "': " + feature + " '" + value + "' is not one it offers (" + list + ")");
-  GError* error = nullptr;
-  arv_camera_set_string(c, feature, value.c_str(), &error);
-  check(error, id, (std::string("set ") + feature).c_str());
+    throw std::runtime_error("camera '" + id + "': " + label + " '" + value + "' is not one it offers (" + list + ")");
 }
 
 // Sets an integer feature the camera declares a range (and step) for, and reads it back.
@@ -134,19 +124,17 @@ void AravisCamera::activate() {
       check(error, settings_.id, "set the software trigger");
     } else {
       // The source first checked against what the camera offers: Aravis would otherwise
-      // fail with GenICam's own words, or a camera without that line take another.
-      bool has = false;
-      const std::string sources = offered(c, "TriggerSource", settings_.trigger_source, has, settings_.id);
-      if (!has)
-        throw std::runtime_error("camera '" + settings_.id + "': trigger source '" + settings_.trigger_source +
-                                 "' is not one it offers (" + sources + ")");
-      // Trigger mode on for the frame start, the source, and a rising edge where it has
+      // fail with GenICam's own words, or a camera without that line take another. Then
+      // trigger mode on for the frame start, that source, and a rising edge where it has
       // TriggerActivation; then the configured activation.
+      require_offered(c, "TriggerSource", "trigger source", settings_.trigger_source, settings_.id);
       arv_camera_set_trigger(c, settings_.trigger_source.c_str(), &error);
       check(error, settings_.id, "set the hardware trigger");
       const char* activation = genicam_name(settings_.trigger_activation);
       if (arv_camera_is_feature_available(c, "TriggerActivation", nullptr)) {
-        set_offered(c, "TriggerActivation", activation, settings_.id);
+        require_offered(c, "TriggerActivation", "TriggerActivation", activation, settings_.id);
+        arv_camera_set_string(c, "TriggerActivation", activation, &error);
+        check(error, settings_.id, "set TriggerActivation");
       } else if (settings_.trigger_activation != TriggerActivation::kRisingEdge) {
         throw std::runtime_error("camera '" + settings_.id + "': it has no TriggerActivation, so it cannot be set to " +
                                  activation + " (leave trigger_activation at rising_edge)");

@@ -6,8 +6,9 @@
 // configured size, frame rate, exposure and gain, its GigE Vision packet size and
 // inter-packet delay, and triggered either by software or by a hardware line (both
 // cameras on the same trigger line expose at the same instant); what it is set to is
-// read back, and what it does not offer is refused naming the camera and what it offers. Frames come from a pool of buffers allocated at activation; next() hands
-// out one frame at a time and takes the previous one back. Lost and incomplete frames
+// read back, and what it does not offer is refused naming the camera and what it offers.
+// Frames come from a pool of buffers allocated at activation; next() hands out one frame
+// at a time and takes the previous one back. Lost and incomplete frames
 // are counted, and a camera that stops delivering is reported as lost.
 #include <atomic>
 #include <cstdint>

@@ -10,10 +10,12 @@
 #include <CLI/CLI.hpp>
 #include <iostream>
 
+#include "markcell/build_info.hpp"  // generated: firmware_host/cmake/build_info.cmake
 #include "markcell/host/command.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/rig/commands.hpp"
 #include "markcell/tools/commands.hpp"
+#include "subcommand_suggestion.hpp"
 
 namespace {
 
@@ -39,6 +41,10 @@ int main(int argc, char** argv) {
   CLI::App app{"markcell: controller of a robotic cell that tracks moving body panels and spray-marks their surface defects"};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "Show help for every subcommand");
+  // The first line is what help2man puts in the man page's header; the second is what a
+  // bug report needs.
+  app.set_version_flag("--version", "markcell " MARKCELL_VERSION "\ncommit " MARKCELL_GIT_COMMIT ", build type " MARKCELL_BUILD_TYPE
+                       ", " MARKCELL_COMPILER, "Print the version, the git commit and the build type, and exit");
 
   host::Commands commands;
   host::add_service_commands(app, commands, signals);
@@ -48,6 +54,12 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() != 0) {  // not --help or --version
+      if (const auto unknown = host::unknown_subcommand(app, argc, argv)) {
+        std::cerr << "markcell: " << *unknown << "\n";
+        return host::kExitConfig;
+      }
+    }
     const int code = app.exit(e);
     return code == 0 ? 0 : host::kExitConfig;
   }

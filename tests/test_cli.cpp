@@ -29,6 +29,41 @@ TEST_CASE("every subcommand has --help") {
   CHECK(none.exit_code == 2);
 }
 
+TEST_CASE("--version: the project's version, the commit built from, the build type") {
+  const auto r = run_command(kMarkcell + " --version");
+  INFO(r.output);
+  CHECK(r.exit_code == 0);
+  // The references: CMakeLists.txt's project() line and git itself.
+  const std::string lists = markcell::test::read_file(source_path("CMakeLists.txt"));
+  const auto at = lists.find("project(markcell VERSION ");
+  REQUIRE(at != std::string::npos);
+  const std::string version = lists.substr(at + 25, lists.find(' ', at + 25) - at - 25);
+  CHECK(r.output.rfind("markcell " + version + "\n", 0) == 0);
+  const auto git = run_command("git -C " + source_path("") + " rev-parse --short=12 HEAD 2>/dev/null");
+  if (git.exit_code == 0 && git.output.size() > 1)  // a checkout (a tarball says "unknown")
+    CHECK(r.output.find("commit " + git.output.substr(0, git.output.size() - 1)) != std::string::npos);
+  CHECK(r.output.find(std::string(", build type ") + MARKCELL_TEST_BUILD_TYPE + ", ") != std::string::npos);
+}
+
+TEST_CASE("an unknown subcommand: the one meant, or the known ones, and exit 2") {
+  struct Case {
+    const char* args;
+    const char* said;
+  };
+  for (const Case c : {Case{"chek-config", "markcell: unknown subcommand 'chek-config'; did you mean check-config?"},
+                       Case{"repaly --config x", "markcell: unknown subcommand 'repaly'; did you mean replay?"},
+                       Case{"sel", "markcell: unknown subcommand 'sel'; did you mean select-mfs?"},
+                       Case{"bench rendr", "markcell: unknown subcommand 'bench rendr'; did you mean bench render?"},
+                       Case{"frobnicate", "markcell: unknown subcommand 'frobnicate' (known: check-config, config-schema, run, "
+                                          "calibrate-stereo, calibrate-base, record, capacity, select-mfs, bench, sim, replay)"},
+                       Case{"bench x", "markcell: unknown subcommand 'bench x' (known: loop, vision, render)"}}) {
+    const auto r = run_command(kMarkcell + " " + c.args);
+    INFO(c.args << ": " << r.output);
+    CHECK(r.exit_code == 2);
+    CHECK(r.output == std::string(c.said) + "\n");
+  }
+}
+
 TEST_CASE("check-config: valid file exits 0, a bad one prints every error and exits 2") {
   const auto ok = run_command(kMarkcell + " check-config " + source_path("config/cell.example.yaml"));
   CHECK(ok.exit_code == 0);

@@ -21,7 +21,8 @@ for f in /usr/bin/markcell /usr/lib/systemd/system/markcell.service /etc/markcel
          /etc/markcell/calibration/marking_stereo.yaml /etc/markcell/calibration/base.yaml \
          /etc/markcell/panels/door.yaml /etc/markcell/scenarios/paper-door.yaml /usr/share/markcell/markcell_arm.dbc \
          /usr/share/doc/markcell/vision/RECORDING.md /usr/share/doc/markcell/README.md \
-         /usr/share/doc/markcell/docs/configuration.md /usr/share/doc/markcell/docs/safety.md; do
+         /usr/share/doc/markcell/docs/configuration.md /usr/share/doc/markcell/docs/safety.md \
+         /usr/share/man/man1/markcell.1.gz; do
   grep -qx "$f" "$work/files" || { echo "missing from the package: $f"; fail=1; }
 done
 dpkg-deb -e "$deb" "$work/control"
@@ -32,6 +33,11 @@ grep -qx "Architecture: $arch" "$work/control/control" || { echo "not Architectu
 grep "^Depends:" "$work/control/control"
 [ "$fail" = 0 ] || exit 1
 dpkg-deb -x "$deb" "$work/root"
+# The man page: help2man's from --help-all, so every subcommand's usage is in it.
+man_text=$(zcat "$work/root/usr/share/man/man1/markcell.1.gz" | sed 's/\\-/-/g')
+for sub in check-config run sim replay select-mfs calibrate-stereo calibrate-base capacity record; do
+  grep -q "^$sub\b" <<<"$man_text" || { echo "the man page lacks the subcommand $sub"; exit 1; }
+done
 ${emulator[@]+"${emulator[@]}"} "$work/root/usr/bin/markcell" check-config "$work/root/etc/markcell/cell.yaml"
 "$here/verify_service_unit.sh" "$work/root/usr/lib/systemd/system/markcell.service" "$work/root/usr/bin/markcell"
 echo "the package: file list, conffiles, postinst and unit OK"

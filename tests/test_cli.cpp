@@ -29,7 +29,7 @@ TEST_CASE("every subcommand has --help") {
   CHECK(none.exit_code == 2);
 }
 
-TEST_CASE("--version: the project's version, the commit built from, the build type") {
+TEST_CASE("markcell --version: the project's version, the commit built from, the build type") {
   const auto r = run_command(kMarkcell + " --version");
   INFO(r.output);
   CHECK(r.exit_code == 0);

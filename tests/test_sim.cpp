@@ -302,11 +302,12 @@ TEST_CASE("replaying the same recording gives the same command log, pose log and
 }
 
 // Determinism across compilers (docs/determinism.md): the same scenario and seed from this
-// markcell (GCC) and the fuzz preset's (clang, libc++'s distributions would differ, and
-// clang contracts differently) give the same recording, inspection record, command log,
+// markcell (GCC, Debug with the sanitizers) and the clang preset's (clang 14, a plain -O3
+// Release; libc++'s distributions would differ, and clang contracts differently) give the
+// same recording, inspection record, command log,
 // pose log and report, byte for byte. `./toolchain/run test` builds both.
 TEST_CASE("GCC's and clang's markcell make the same scenario byte for byte") {
-  INFO("clang's markcell: " << MARKCELL_CLANG_BINARY << " (./toolchain/run build fuzz makes it)");
+  INFO("clang's markcell: " << MARKCELL_CLANG_BINARY << " (./toolchain/run build clang makes it)");
   REQUIRE(std::filesystem::exists(MARKCELL_CLANG_BINARY));
   const std::string args = "paper-door --seconds 2 --fps 10 --seed 3";
   const std::string gcc = generated_scenario("test-sim-same-bits-gcc", args);

@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "markcell/common/log_escape.hpp"
+#include "markcell/host/install_paths.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/host/stop_signal.hpp"
 #include "markcell/rig/render.hpp"
@@ -97,7 +98,7 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, bool
 
 void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals, BoardCalibration calibrate_board) {
   struct Options {
-    std::string rig_config = "config/cell.example.yaml", rig_out, sim_scenario, replay_recording, scanner_file;
+    std::string rig_config = host::default_config_file(), rig_out, sim_scenario, replay_recording, scanner_file;
     std::uint64_t sim_seed = 1;
     double sim_seconds = 0, sim_fps = -1, radius_mm = 10;
     bool one_predictor = false, quiet = false, no_arm = false, draw_arm = false;
@@ -129,7 +130,7 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
                      "Stereo calibration to replay with, when the recording's and the configuration's differ")
       ->check(CLI::ExistingFile);
   for (auto* c : {sim, replay}) {
-    c->add_option("--config,-c", o->rig_config, "Cell configuration (YAML)");
+    c->add_option("--config,-c", o->rig_config, std::string("Cell configuration (YAML)") + kDefaultConfigHelp);
     c->add_option("--out,-o", o->rig_out, "Folder for report.json, the plots (and the generated recording)")->required();
     c->add_option("--radius-mm", o->radius_mm, "A spray within this of a defect's centre marks it")->check(CLI::PositiveNumber);
     c->add_flag("--one-predictor", o->one_predictor, "Replay with the configured predictor only (default: both, same frames)");

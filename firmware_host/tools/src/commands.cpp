@@ -10,6 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "markcell/common/log_escape.hpp"
+#include "markcell/host/install_paths.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/rig/render.hpp"
 #include "markcell/rig/panel.hpp"
@@ -73,10 +74,11 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
   if (!scenario.empty()) {
     // The rig's stand-in for the installation engineer: the scenario's panel rendered
     // square to the left camera, its MFs where the panel model has them.
-    const auto s = rig::find_scenario(scenario, "config/scenarios", 1);
-    const auto cal = vision::load_stereo_calibration("config/calibration/marking_stereo.yaml");
+    const std::string config_dir = default_config_dir();
+    const auto s = rig::find_scenario(scenario, config_dir + "/scenarios", 1);
+    const auto cal = vision::load_stereo_calibration(config_dir + "/calibration/marking_stereo.yaml");
     cv::Mat reference;
-    const rig::Panel shipped = rig::load_panel("config/panels/" + s.panel_type + ".yaml");
+    const rig::Panel shipped = rig::load_panel(config_dir + "/panels/" + s.panel_type + ".yaml");
     model = rig::reference_panel_type(s, shipped, cal, rig::RenderSettings{}, &reference);
     if (!image.empty()) cv::imwrite(image, reference);
   } else {
@@ -208,17 +210,17 @@ void add_tool_commands(CLI::App& app, Commands& out) {
   struct Options {
     std::string cal_images, cal_board = "9x6", cal_out;
     double cal_square = 0.04;
-    std::string base_config = "config/cell.example.yaml", base_out, base_images;
+    std::string base_config = default_config_file(), base_out, base_images;
     std::uint64_t base_seed = 1;
-    std::string record_config = "config/cell.example.yaml";
+    std::string record_config = default_config_file();
     RecordOptions record;
-    std::string capacity_config = "config/cell.example.yaml";
+    std::string capacity_config = default_config_file();
     std::vector<double> capacity_speeds{0.014, 0.15, 0.30, 0.60}, capacity_spacings{0.05, 0.10, 0.20, 0.30};
     double capacity_depth = 3.1, capacity_length = 1.0;
     std::string mf_image, mf_panel, mf_out, mf_scenario;
     std::vector<std::string> mf_positions;
     int mf_snap = 6, mf_search_x = 160, mf_search_y = 40;
-    std::string bench_config = "config/cell.example.yaml";
+    std::string bench_config = default_config_file();
     LoopBenchOptions loop;
     VisionBenchOptions vision;
     RenderBenchOptions render;
@@ -234,7 +236,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
 
   auto* calibrate_base = app.add_subcommand(
       "calibrate-base", "Fit X_Base_CamR from a checkerboard on the gripper at the configured arm poses (simulated arm: the rig)");
-  calibrate_base->add_option("--config,-c", o->base_config, "Cell configuration (YAML): devices, base_calibration section");
+  calibrate_base->add_option("--config,-c", o->base_config, std::string("Cell configuration (YAML): devices, base_calibration section") + kDefaultConfigHelp);
   calibrate_base->add_option("--out", o->base_out, "Calibration file to write X_Base_CamR to (only when within the limits)")->required();
   calibrate_base->add_option("--images", o->base_images, "Also save the stereo pairs taken into this folder");
   calibrate_base->add_option("--seed", o->base_seed, "The rig's calibration-board scenario seed (simulated arm only)");
@@ -245,7 +247,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
                  }});
 
   auto* record = app.add_subcommand("record", "Write live stereo pairs from the configured Aravis cameras as a recording (vision/RECORDING.md)");
-  record->add_option("--config,-c", o->record_config, "Cell configuration (devices.cameras: ids, size, rate, trigger; calibration.stereo)");
+  record->add_option("--config,-c", o->record_config, std::string("Cell configuration (devices.cameras: ids, size, rate, trigger; calibration.stereo)") + kDefaultConfigHelp);
   record->add_option("--out,-o", o->record.out, "Recording folder to write (must not hold a recording)")->required();
   record->add_option("--frames,-n", o->record.frames, "Stereo pairs to record")->check(CLI::Range(1, 1000000));
   record->add_option("--panel", o->record.panel_type, "Panel type recorded (the manifest's panel_type)")->required();
@@ -261,7 +263,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
                  }});
 
   auto* capacity = app.add_subcommand("capacity", "How many defects at spacing d one pass can mark at a line speed (the planner's model)");
-  capacity->add_option("--config,-c", o->capacity_config, "Cell configuration (arm limits, settle, pulse, X_Base_CamR)");
+  capacity->add_option("--config,-c", o->capacity_config, std::string("Cell configuration (arm limits, settle, pulse, X_Base_CamR)") + kDefaultConfigHelp);
   capacity->add_option("--speed", o->capacity_speeds, "Line speeds, m/s (repeat)")->check(CLI::PositiveNumber);
   capacity->add_option("--spacing", o->capacity_spacings, "Defect spacings along the line, m (repeat)")->check(CLI::PositiveNumber);
   capacity->add_option("--depth", o->capacity_depth, "Panel surface distance from CamR, m")->check(CLI::PositiveNumber);
@@ -299,7 +301,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
   auto* bench = app.add_subcommand("bench", "Benchmarks");
   bench->require_subcommand(1);
   auto* loop = bench->add_subcommand("loop", "Control lane wake-up latency at 1 kHz vs cyclictest, same run");
-  loop->add_option("--config,-c", o->bench_config, "Cell configuration (its control lane's core and priority)");
+  loop->add_option("--config,-c", o->bench_config, std::string("Cell configuration (its control lane's core and priority)") + kDefaultConfigHelp);
   loop->add_option("--seconds", o->loop.seconds, "Duration of each of the two measurements")->check(CLI::PositiveNumber);
   loop->add_option("--lane", o->loop.lane, "Which lane of the configuration to measure");
   loop->add_option("--json", o->loop.json_path, "Write the results as JSON to this file");
@@ -310,7 +312,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
                    });
                  }});
   auto* vision_bench = bench->add_subcommand("vision", "The vision task per stereo pair vs cv::buildOpticalFlowPyramid (the floor), one thread");
-  vision_bench->add_option("--config,-c", o->bench_config, "Cell configuration (calibration, panel types, tracker settings)");
+  vision_bench->add_option("--config,-c", o->bench_config, std::string("Cell configuration (calibration, panel types, tracker settings)") + kDefaultConfigHelp);
   vision_bench->add_option("--frames", o->vision.frames, "Stereo pairs to time (rendered first)")->check(CLI::Range(10, 100000));
   vision_bench->add_option("--scenario", o->vision.scenario, "Rig scenario whose frames are rendered");
   vision_bench->add_option("--json", o->vision.json_path, "Write the results as JSON to this file");
@@ -320,7 +322,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
                    });
                  }});
   auto* render_bench = bench->add_subcommand("render", "The rig's renderer per stereo pair, shipped door vs a 200k-triangle door, one core");
-  render_bench->add_option("--config,-c", o->bench_config, "Cell configuration (calibration, panel types)");
+  render_bench->add_option("--config,-c", o->bench_config, std::string("Cell configuration (calibration, panel types)") + kDefaultConfigHelp);
   render_bench->add_option("--pairs", o->render.pairs, "Stereo pairs per mesh")->check(CLI::Range(5, 10000));
   render_bench->add_option("--json", o->render.json_path, "Write the results as JSON to this file");
   out.push_back({render_bench, [o] {

@@ -16,18 +16,19 @@ work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 (cd "$build" && cpack -G DEB -B "$work/out" >"$work/cpack.log" 2>&1) || { cat "$work/cpack.log"; exit 1; }
 deb=$(ls "$work"/out/markcell_*_amd64.deb)
+window_deb=$(ls "$work"/out/markcell-select-mfs_*_amd64.deb) || { ls "$work/out"; echo "no markcell-select-mfs package"; exit 1; }
 ddeb=$(ls "$work"/out/markcell-dbgsym_*_amd64.ddeb) || { ls "$work/out"; echo "no -dbgsym package"; exit 1; }
-echo "built $(basename "$deb") ($(stat -c %s "$deb") bytes) and $(basename "$ddeb") ($(stat -c %s "$ddeb") bytes)"
+for f in "$deb" "$window_deb" "$ddeb"; do echo "built $(basename "$f") ($(stat -c %s "$f") bytes)"; done
 
 # 1. lintian, as Debian checks its own packages: no error and no warning (the package
 # ships no overrides); the informational and pedantic tags printed for the record.
-lintian --info --display-level '>=warning' "$deb" >"$work/lintian" 2>&1 || true
+lintian --info --display-level '>=warning' "$deb" "$window_deb" >"$work/lintian" 2>&1 || true
 echo "lintian:"; sed 's/^/  /' "$work/lintian"
 if grep -Eq '^(E|W): ' "$work/lintian"; then
   echo "lintian reports errors or warnings (above)"
   exit 1
 fi
-lintian --display-level '>=pedantic' --show-overrides "$deb" 2>/dev/null | sed 's/^/  below warning or overridden: /' || true
+lintian --display-level '>=pedantic' --show-overrides "$deb" "$window_deb" 2>/dev/null | sed 's/^/  below warning or overridden: /' || true
 
 # The binary is stripped; its debug information is in the -dbgsym package, under the
 # build id gdb looks it up by.
@@ -41,13 +42,17 @@ debug_file="$work/dbg/usr/lib/debug/.build-id/${build_id:0:2}/${build_id:2}.debu
 [ -f "$debug_file" ] || { echo "no $debug_file in the -dbgsym package"; find "$work/dbg" -type f; exit 1; }
 readelf -S "$debug_file" | grep -q '\.debug_info' || { echo "$debug_file holds no .debug_info"; exit 1; }
 echo "binary: $(stat -c %s "$build/firmware_host/markcell") bytes in the build, $(stat -c %s "$work/pkg/usr/bin/markcell") stripped in the package"
+# The cell's package pulls no GUI toolkit: highgui (and Qt through it) is the window's.
+dpkg-deb -f "$deb" Depends | grep -q highgui && { echo "markcell depends on highgui: $(dpkg-deb -f "$deb" Depends)"; exit 1; }
+dpkg-deb -f "$window_deb" Depends | grep -q 'libopencv-highgui' || { echo "markcell-select-mfs lacks highgui in Depends"; exit 1; }
+echo "markcell-select-mfs Depends: $(dpkg-deb -f "$window_deb" Depends)"
 
 # 2. Installed for real, in a namespace whose /usr, /etc and /var are overlays of this
 # machine's with a tmpfs on top; /run/systemd and /run/udev hidden, so the maintainer
 # scripts cannot reach this machine's systemd or udev.
 cat >"$work/inside.sh" <<'INSIDE'
 set -euo pipefail
-work=$1 deb=$2
+work=$1 deb=$2 window_deb=$3
 mount -t tmpfs -o mode=0755 tmpfs "$work/layer"
 for d in usr etc var; do
   mkdir -p "$work/layer/$d/upper" "$work/layer/$d/work"
@@ -56,7 +61,7 @@ done
 for d in /run/systemd /run/udev; do [ -d "$d" ] && mount -t tmpfs tmpfs "$d"; done
 if dpkg-query -W markcell >/dev/null 2>&1; then echo "markcell is already installed on this machine"; exit 1; fi
 
-dpkg -i "$deb"
+dpkg -i "$deb" "$window_deb"
 check() { if ! "$@"; then echo "FAILED: $*"; exit 1; fi; }
 # The groups and the user the unit names exist; the state folder is the user's alone.
 check getent group gpio
@@ -66,6 +71,7 @@ check test "$(stat -c '%U:%G %a' /var/lib/markcell/records)" = "markcell:markcel
 check test -f /usr/lib/udev/rules.d/60-markcell-gpio.rules
 check grep -q '^  results_file: /var/lib/markcell/results.jsonl' /etc/markcell/cell.yaml
 check test -f /usr/share/man/man1/markcell.1.gz
+check test -f /usr/share/man/man1/markcell-select-mfs.1.gz
 
 # The defaults resolve against /etc/markcell whatever the working directory.
 cd /
@@ -108,6 +114,23 @@ check grep -q 'running on the real clock' "$work/run.log"
 # files as markcell or nothing at all.
 if [ -e /var/lib/markcell/results.jsonl ]; then check test "$(stat -c %U /var/lib/markcell/results.jsonl)" = markcell; fi
 
+# select-mfs without --mf runs the window's program (here without a display: it says so);
+# with that package removed, markcell says what is missing.
+markcell select-mfs --from-scenario paper-door --image "$work/door.png" --out "$work/door.yaml" >/dev/null
+set +e
+env -u DISPLAY markcell select-mfs --image "$work/door.png" --panel door --out "$work/window.yaml" >"$work/window.log" 2>&1
+rc=$?
+set -e
+check test "$rc" -eq 1
+check grep -q 'no display to open the window on' "$work/window.log"
+dpkg -r markcell-select-mfs >/dev/null
+set +e
+markcell select-mfs --image "$work/door.png" --panel door --out "$work/window.yaml" >"$work/window.log" 2>&1
+rc=$?
+set -e
+check test "$rc" -eq 1
+check grep -q 'the window is the program /usr/bin/markcell-select-mfs, which is not installed' "$work/window.log"
+
 # Removed and purged: the state stays (Debian's convention for /var/lib), the
 # configuration goes with the purge.
 dpkg -r markcell >/dev/null
@@ -118,4 +141,4 @@ check test -d /var/lib/markcell
 echo "commissioned: dpkg -i, the user, groups and state folder, check-config and a run as the unit runs them, remove and purge"
 INSIDE
 mkdir -p "$work/layer"
-unshare --mount --propagation private bash "$work/inside.sh" "$work" "$deb"
+unshare --mount --propagation private bash "$work/inside.sh" "$work" "$deb" "$window_deb"

@@ -315,4 +315,24 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
   const auto headless = run_command("env -u DISPLAY " + kMarkcell + " select-mfs --image " + image + " --panel door --out " + none);
   CHECK(headless.exit_code == 1);
   CHECK(headless.output.find("no display to open the window on (DISPLAY is not set)") != std::string::npos);
+
+  // The window is a program of its own (package markcell-select-mfs): a markcell without
+  // it beside says so and writes nothing; given the MFs it needs no window.
+  const auto alone = dir.path() / "alone";
+  std::filesystem::create_directory(alone);
+  std::filesystem::copy_file(kMarkcell, alone / "markcell");
+  std::filesystem::permissions(alone / "markcell", std::filesystem::perms::owner_exec, std::filesystem::perm_options::add);
+  const auto missing = run_command((alone / "markcell").string() + " select-mfs --image " + image + " --panel door --out " + none);
+  INFO(missing.output);
+  CHECK(missing.exit_code == 1);
+  CHECK(missing.output.find("markcell select-mfs: the window is the program " + (alone / "markcell-select-mfs").string() +
+                            ", which is not installed (Debian: the markcell-select-mfs package); without it give the "
+                            "macro-features as --mf X,Y (3 or more)") != std::string::npos);
+  CHECK_FALSE(std::filesystem::exists(none));
+  const auto without_window = run_command((alone / "markcell").string() + " select-mfs --image " + image +
+                                          " --panel door --out " + none + " --mf " + near(1, 0, 0) + " --mf " +
+                                          near(2, 0, 0) + " --mf " + near(3, 0, 0));
+  INFO(without_window.output);
+  CHECK(without_window.exit_code == 0);
+  CHECK(markcell::vision::load_panel_type(none).count() == 3);
 }

@@ -14,7 +14,8 @@ work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 (cd "$build" && cpack -G DEB -B "$work/out" >"$work/cpack.log" 2>&1) || { cat "$work/cpack.log"; exit 1; }
 deb=$(ls "$work"/out/markcell_*_"$arch".deb) || { ls "$work"/out; echo "no markcell_*_$arch.deb"; exit 1; }
-echo "built $(basename "$deb")"
+window_deb=$(ls "$work"/out/markcell-select-mfs_*_"$arch".deb) || { ls "$work"/out; echo "no markcell-select-mfs_*_$arch.deb"; exit 1; }
+echo "built $(basename "$deb") and $(basename "$window_deb")"
 dpkg-deb -c "$deb" | awk '{print $6}' | sed 's|^\./|/|' > "$work/files"
 fail=0
 for f in /usr/bin/markcell /usr/lib/systemd/system/markcell.service /etc/markcell/cell.yaml \
@@ -25,10 +26,19 @@ for f in /usr/bin/markcell /usr/lib/systemd/system/markcell.service /etc/markcel
          /usr/share/man/man1/markcell.1.gz; do
   grep -qx "$f" "$work/files" || { echo "missing from the package: $f"; fail=1; }
 done
+# The select-mfs window and its man page are the other package's, with its own copyright.
+dpkg-deb -c "$window_deb" | awk '{print $6}' | sed 's|^\./|/|' > "$work/window_files"
+for f in /usr/bin/markcell-select-mfs /usr/share/man/man1/markcell-select-mfs.1.gz \
+         /usr/share/doc/markcell-select-mfs/copyright /usr/share/doc/markcell-select-mfs/changelog.gz; do
+  grep -qx "$f" "$work/window_files" || { echo "missing from markcell-select-mfs: $f"; fail=1; }
+done
+if grep -q markcell-select-mfs "$work/files"; then echo "markcell holds the window's files"; fail=1; fi
+dpkg-deb -f "$window_deb" Depends | grep -q "markcell (= " || { echo "markcell-select-mfs does not depend on markcell"; fail=1; }
 dpkg-deb -e "$deb" "$work/control"
 grep -qx /etc/markcell/cell.yaml "$work/control/conffiles" || { echo "cell.yaml is not a conffile"; fail=1; }
 grep -q "adduser --quiet --system --group" "$work/control/postinst" || { echo "postinst does not create the system user"; fail=1; }
 grep -q "^Depends:.*libgpiod" "$work/control/control" || { echo "Depends lacks the shared libraries"; fail=1; }
+grep -q "^Depends:.*highgui" "$work/control/control" && { echo "markcell depends on highgui"; fail=1; }
 grep -qx "Architecture: $arch" "$work/control/control" || { echo "not Architecture: $arch"; fail=1; }
 grep "^Depends:" "$work/control/control"
 [ "$fail" = 0 ] || exit 1

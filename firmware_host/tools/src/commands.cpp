@@ -2,12 +2,15 @@
 // bench loop, bench vision and bench render.
 #include "markcell/tools/commands.hpp"
 
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <memory>
 #include <opencv2/imgcodecs.hpp>
+#include <unistd.h>
 
 #include "markcell/common/log_escape.hpp"
 #include "markcell/host/install_paths.hpp"
@@ -19,7 +22,7 @@
 #include "markcell/tools/bench.hpp"
 #include "markcell/tools/capacity.hpp"
 #include "markcell/tools/record.hpp"
-#include "markcell/tools/select_mfs_window.hpp"
+#include "markcell/tools/panel_type_report.hpp"
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/panel_tracker.hpp"
 #include "markcell/vision/stereo_calibration.hpp"
@@ -66,6 +69,33 @@ int calibrate_stereo_command(const std::string& folder, const std::string& board
   return 0;
 }
 
+// The select-mfs window is markcell-select-mfs, beside this program (its own package, so
+// the cell's does not pull highgui and Qt onto a headless cell computer): run in this
+// process's place with the same choices.
+int exec_select_mfs_window(const std::string& image, const std::string& panel, const std::string& out, int snap,
+                           int search_x, int search_y) {
+  std::error_code ec;
+  const std::filesystem::path self = std::filesystem::read_symlink("/proc/self/exe", ec);
+  const std::filesystem::path window = self.parent_path() / "markcell-select-mfs";
+  if (ec || ::access(window.c_str(), X_OK) != 0) {
+    std::cerr << "markcell select-mfs: the window is the program " << window.string()
+              << ", which is not installed (Debian: the markcell-select-mfs package); "
+              << "without it give the macro-features as --mf X,Y (3 or more)\n";
+    return kExitRuntime;
+  }
+  const std::vector<std::string> args{window.string(), "--image", image, "--panel", panel, "--out", out,
+                                      "--snap", std::to_string(snap), "--search-x", std::to_string(search_x),
+                                      "--search-y", std::to_string(search_y)};
+  std::vector<char*> argv;
+  for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+  argv.push_back(nullptr);
+  std::cout.flush();
+  std::fflush(stdout);
+  ::execv(window.c_str(), argv.data());
+  std::cerr << "markcell select-mfs: cannot run " << window.string() << ": " << std::strerror(errno) << "\n";
+  return kExitRuntime;
+}
+
 int select_mfs_command(const std::string& image, const std::string& panel, const std::string& out,
                        const std::vector<std::string>& positions, const std::string& scenario, int snap, int search_x,
                        int search_y) {
@@ -81,6 +111,8 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     const rig::Panel shipped = rig::load_panel(config_dir + "/panels/" + s.panel_type + ".yaml");
     model = rig::reference_panel_type(s, shipped, cal, rig::RenderSettings{}, &reference);
     if (!image.empty()) cv::imwrite(image, reference);
+  } else if (positions.empty()) {  // the window, a program of its own: the engineer clicks them
+    return exec_select_mfs_window(image, panel, out, snap, search_x, search_y);
   } else {
     const cv::Mat img = cv::imread(image, cv::IMREAD_GRAYSCALE);
     if (img.empty()) {
@@ -88,20 +120,6 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
       return kExitConfig;
     }
     std::vector<vision::MfPick> px;
-    if (positions.empty()) {  // the window: the engineer clicks them
-      try {
-        const auto chosen = select_mfs_window(img, "markcell select-mfs: " + panel, snap, std::cout);
-        if (!chosen) {
-          std::cerr << "markcell select-mfs: closed without saving; " << out << " not written\n";
-          return kExitRuntime;
-        }
-        px = *chosen;
-        snap = 0;  // already where the window showed them
-      } catch (const std::exception& e) {
-        std::cerr << "markcell select-mfs: " << e.what() << "\n";
-        return kExitRuntime;
-      }
-    }
     for (const auto& p : positions) {
       // X,Y or X,Y,KIND (corner, hole; without it, whichever is under the point).
       double x = 0, y = 0;
@@ -126,19 +144,7 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     }
   }
   vision::save_panel_type(out, model);
-  std::cout << "panel type '" << model.name << "': " << model.count() << " macro-features\n";
-  for (int i = 0; i < model.count(); ++i) {
-    const Eigen::Vector2d& p = model.mfs[static_cast<std::size_t>(i)].reference_px;
-    const auto& mf = model.mfs[static_cast<std::size_t>(i)];
-    std::printf("  MF %2d %-6s at (%.2f, %.2f) px", i + 1, std::string(vision::to_string(mf.kind)).c_str(), p.x(), p.y());
-    if (mf.kind == vision::MfKind::kHole) std::printf(", radius %.2f px", mf.hole_radius_px);
-    // How far each MF moved from the position given (snapped, then refined).
-    if (static_cast<std::size_t>(i) < clicked.size())
-      std::printf(", %.2f px from (%.2f, %.2f)", (p - clicked[static_cast<std::size_t>(i)]).norm(),
-                  clicked[static_cast<std::size_t>(i)].x(), clicked[static_cast<std::size_t>(i)].y());
-    std::printf("\n");
-  }
-  std::cout << "wrote " << out << "\n";
+  print_panel_type(model, clicked, out);
   return 0;
 }
 

@@ -23,6 +23,7 @@
 #include "markcell/common/time.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/host/exit_codes.hpp"
 #include "markcell/host/journal.hpp"
 #include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
@@ -30,10 +31,6 @@
 #include "markcell/sim/plc_script.hpp"
 
 namespace markcell::host {
-
-inline constexpr int kExitOk = 0;
-inline constexpr int kExitRuntime = 1;  // a device, a fault at start-up, a fault of the cell itself
-inline constexpr int kExitConfig = 2;   // an invalid configuration or arguments
 
 struct ServiceOptions {
   ClockKind clock = ClockKind::kReal;

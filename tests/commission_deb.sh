@@ -68,6 +68,12 @@ check getent group gpio
 for g in gpio dialout video; do check sh -c "id -nG markcell | tr ' ' '\n' | grep -qx $g"; done
 check test "$(stat -c '%U:%G %a' /var/lib/markcell)" = "markcell:markcell 750"
 check test "$(stat -c '%U:%G %a' /var/lib/markcell/records)" = "markcell:markcell 750"
+# The calibrations: state seeded from the package, the service user's.
+check test "$(stat -c '%U:%G %a' /var/lib/markcell/calibration)" = "markcell:markcell 750"
+for f in marking_stereo.yaml base.yaml inspection_stereo.yaml; do
+  check test "$(stat -c '%U:%G %a' /var/lib/markcell/calibration/$f)" = "markcell:markcell 640"
+  check cmp -s /usr/share/markcell/calibration/$f /var/lib/markcell/calibration/$f
+done
 check test -f /usr/lib/udev/rules.d/60-markcell-gpio.rules
 check grep -q '^  results_file: /var/lib/markcell/results.jsonl' /etc/markcell/cell.yaml
 check test -f /usr/share/man/man1/markcell.1.gz
@@ -114,6 +120,23 @@ check grep -q 'running on the real clock' "$work/run.log"
 # files as markcell or nothing at all.
 if [ -e /var/lib/markcell/results.jsonl ]; then check test "$(stat -c %U /var/lib/markcell/results.jsonl)" = markcell; fi
 
+# A calibration replaced as the service user (calibrate-base on the simulated arm): the
+# seed kept in history/, both listed by `markcell calibrations`, named by check-config.
+check test "$( (as_service markcell calibrate-base --out /var/lib/markcell/calibration/base.yaml) | tail -1)" = \
+  "wrote /var/lib/markcell/calibration/base.yaml"
+kept=$(ls /var/lib/markcell/calibration/history/base.*.yaml)
+check cmp -s "$kept" /usr/share/markcell/calibration/base.yaml
+check test "$(stat -c %U /var/lib/markcell/calibration/base.yaml)" = markcell
+markcell calibrations >"$work/calibrations.log"
+cat "$work/calibrations.log"
+check grep -q "^base: /var/lib/markcell/calibration/base.yaml (in use)" "$work/calibrations.log"
+check grep -q "calibrate-base), RMS" "$work/calibrations.log"
+check grep -q "1 earlier version(s) in /var/lib/markcell/calibration/history" "$work/calibrations.log"
+check sh -c "markcell check-config /etc/markcell/cell.yaml | grep -q '^base calibration /var/lib/markcell/calibration/base.yaml: calibrated '"
+# A reinstall (the postinst again) leaves the cell's calibration alone.
+dpkg -i "$deb" >/dev/null
+check sh -c "! cmp -s /usr/share/markcell/calibration/base.yaml /var/lib/markcell/calibration/base.yaml"
+
 # select-mfs without --mf runs the window's program (here without a display: it says so);
 # with that package removed, markcell says what is missing.
 markcell select-mfs --from-scenario paper-door --image "$work/door.png" --out "$work/door.yaml" >/dev/null
@@ -131,13 +154,15 @@ set -e
 check test "$rc" -eq 1
 check grep -q 'the window is the program /usr/bin/markcell-select-mfs, which is not installed' "$work/window.log"
 
-# Removed and purged: the state stays (Debian's convention for /var/lib), the
-# configuration goes with the purge.
+# Removed and purged: the state (results, records, calibrations and their history) stays,
+# the configuration goes with the purge.
 dpkg -r markcell >/dev/null
 check test -f /etc/markcell/cell.yaml
 dpkg -P markcell >/dev/null
 check test ! -e /etc/markcell/cell.yaml
 check test -d /var/lib/markcell
+check test -f /var/lib/markcell/calibration/base.yaml
+check test -f "$kept"
 echo "commissioned: dpkg -i, the user, groups and state folder, check-config and a run as the unit runs them, remove and purge"
 INSIDE
 mkdir -p "$work/layer"

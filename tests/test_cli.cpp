@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <string>
 
+#include "markcell/common/file_history.hpp"
+#include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/panel_tracker.hpp"
 
 #include "test_files.hpp"
@@ -19,7 +21,7 @@ const std::string kMarkcell = MARKCELL_BINARY;
 }
 
 TEST_CASE("every subcommand has --help") {
-  for (const char* sub : {"check-config", "run", "sim", "replay", "select-mfs", "calibrate-stereo", "calibrate-base", "capacity", "record", "bench", "bench loop", "bench vision"}) {
+  for (const char* sub : {"check-config", "run", "sim", "replay", "select-mfs", "calibrate-stereo", "calibrate-base", "calibrations", "capacity", "record", "bench", "bench loop", "bench vision"}) {
     const auto r = run_command(kMarkcell + " " + sub + " --help");
     INFO(sub << ": " << r.output);
     CHECK(r.exit_code == 0);
@@ -55,13 +57,60 @@ TEST_CASE("an unknown subcommand: the one meant, or the known ones, and exit 2")
                        Case{"sel", "markcell: unknown subcommand 'sel'; did you mean select-mfs?"},
                        Case{"bench rendr", "markcell: unknown subcommand 'bench rendr'; did you mean bench render?"},
                        Case{"frobnicate", "markcell: unknown subcommand 'frobnicate' (known: check-config, config-schema, run, "
-                                          "calibrate-stereo, calibrate-base, record, capacity, select-mfs, bench, sim, replay)"},
+                                          "calibrate-stereo, calibrate-base, calibrations, record, capacity, select-mfs, bench, sim, "
+                                          "replay)"},
                        Case{"bench x", "markcell: unknown subcommand 'bench x' (known: loop, vision, render)"}}) {
     const auto r = run_command(kMarkcell + " " + c.args);
     INFO(c.args << ": " << r.output);
     CHECK(r.exit_code == 2);
     CHECK(r.output == std::string(c.said) + "\n");
   }
+}
+
+TEST_CASE("calibrations: calibrate-base keeps the one it replaces, calibrations and check-config name the one in use") {
+  // A copy of the example configuration, whose calibrations are the test's to replace.
+  markcell::test::TempDir dir;
+  const auto config_dir = dir.path() / "config";
+  std::filesystem::copy(source_path("config"), config_dir, std::filesystem::copy_options::recursive);
+  const std::string config = (config_dir / "cell.example.yaml").string();
+  const std::string base = (config_dir / "calibration" / "base.yaml").string();
+  const std::string shipped = markcell::test::read_file(base);
+  // The shipped calibrations have no provenance: said, with the file's date.
+  const auto before = run_command(kMarkcell + " calibrations -c " + config);
+  INFO(before.output);
+  REQUIRE(before.exit_code == 0);
+  CHECK(before.output.find("base: " + base + " (in use)\n  no provenance (not written by markcell's calibrate tools), modified ") !=
+        std::string::npos);
+  CHECK(before.output.find("  no earlier versions in " + (config_dir / "calibration" / "history").string()) != std::string::npos);
+
+  const auto first = run_command(kMarkcell + " calibrate-base -c " + config + " --out " + base);
+  INFO(first.output);
+  REQUIRE(first.exit_code == 0);
+  const auto kept = markcell::file_history(base);
+  REQUIRE(kept.size() == 1);
+  CHECK(markcell::test::read_file(kept[0].string()) == shipped);  // the shipped one, byte for byte
+  CHECK(first.output.find("kept the previous base.yaml as " + kept[0].string() + "\nwrote " + base + "\n") != std::string::npos);
+
+  const auto listed = run_command(kMarkcell + " calibrations -c " + config);
+  INFO(listed.output);
+  REQUIRE(listed.exit_code == 0);
+  const auto provenance = markcell::vision::load_provenance(base);
+  REQUIRE(provenance);
+  char rms[96];
+  std::snprintf(rms, sizeof rms, "calibrate-base), RMS %.3f mm over 15 arm poses, cameras simulated and simulated\n", provenance->rms);
+  CHECK(listed.output.find("base: " + base + " (in use)\n  calibrated " + provenance->calibrated_utc + " by markcell 0.1.0 (commit ") !=
+        std::string::npos);
+  CHECK(listed.output.find(rms) != std::string::npos);
+  CHECK(listed.output.find("    pose 1  RMS ") != std::string::npos);
+  CHECK(listed.output.find("  1 earlier version(s) in " + (config_dir / "calibration" / "history").string() + ", newest first:\n    " +
+                           kept[0].filename().string() + ": no provenance") != std::string::npos);
+  // check-config names the calibrations it would run with.
+  const auto checked = run_command(kMarkcell + " check-config " + config);
+  INFO(checked.output);
+  CHECK(checked.exit_code == 0);
+  CHECK(checked.output.find("base calibration " + base + ": calibrated " + provenance->calibrated_utc) != std::string::npos);
+  CHECK(checked.output.find("stereo calibration " + (config_dir / "calibration" / "marking_stereo.yaml").string() +
+                            ": no provenance") != std::string::npos);
 }
 
 TEST_CASE("check-config: valid file exits 0, a bad one prints every error and exits 2") {

@@ -1,6 +1,14 @@
 // Building blocks: the cross-lane triple buffer, the fixed histogram, the fault log and
 // the allocation guard the other tests rely on.
 #include <algorithm>
+#include <csignal>
+#include <ctime>
+#include <fcntl.h>
+#include <filesystem>
+#include <fstream>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <array>
 #include <atomic>
 #include <catch2/catch.hpp>
@@ -10,6 +18,8 @@
 #include <vector>
 
 #include "alloc_guard.hpp"
+#include "test_files.hpp"
+#include "markcell/common/file_history.hpp"
 #include "markcell/common/fixed_string.hpp"
 #include "markcell/common/fixed_vector.hpp"
 #include "markcell/control/marking.hpp"
@@ -245,4 +255,121 @@ TEST_CASE("spsc ring: every value pushed is popped once, in order, or counted as
   CHECK(small.pop(v));
   CHECK(v == 0);
   CHECK(small.push(5));
+}
+
+// --- State files: atomic replacement with a dated, bounded history ---------------------
+
+namespace {
+
+std::string read_all(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+void write_text(const std::string& file, const std::string& text) {
+  std::ofstream(file, std::ios::binary) << text;
+}
+// Sets a file's modification time (seconds since the epoch, UTC).
+void set_mtime(const std::filesystem::path& p, std::time_t t) {
+  const struct timespec times[2] = {{t, 0}, {t, 0}};
+  REQUIRE(::utimensat(AT_FDCWD, p.c_str(), times, 0) == 0);
+}
+
+}  // namespace
+
+TEST_CASE("UTC times: ISO 8601 and the file-name form, against known dates") {
+  CHECK(markcell::utc_iso8601(0) == "1970-01-01T00:00:00Z");
+  CHECK(markcell::utc_iso8601(1700000000) == "2023-11-14T22:13:20Z");
+  CHECK(markcell::utc_compact(1700000000) == "20231114T221320Z");
+  CHECK(markcell::utc_compact(951782400) == "20000229T000000Z");  // a leap day
+}
+
+TEST_CASE("a state file is replaced atomically, its previous versions kept by date and bounded") {
+  markcell::test::TempDir dir;
+  const auto path = dir.path() / "base.yaml";
+  const auto history = dir.path() / "history";
+  const auto write = [](const std::string& text) {
+    return [text](const std::string& temporary) {
+      // The writer is handed a file beside the target with the same extension.
+      CHECK(std::filesystem::path(temporary).extension() == ".yaml");
+      write_text(temporary, text);
+    };
+  };
+  // The first version: nothing to keep.
+  auto r = markcell::replace_file_keeping_history(path, write("v1"));
+  CHECK(r.kept.empty());
+  CHECK(read_all(path) == "v1");
+  CHECK_FALSE(std::filesystem::exists(history));
+
+  // The second: the first kept under its own date, byte for byte.
+  set_mtime(path, 1700000000);
+  r = markcell::replace_file_keeping_history(path, write("v2"));
+  CHECK(r.kept == history / "base.20231114T221320Z.yaml");
+  CHECK(read_all(r.kept) == "v1");
+  CHECK(read_all(path) == "v2");
+  // Two versions from the same second both kept, the later one after.
+  set_mtime(path, 1700000000);
+  r = markcell::replace_file_keeping_history(path, write("v3"));
+  CHECK(r.kept == history / "base.20231114T221320Z-02.yaml");
+  CHECK(read_all(r.kept) == "v2");
+  const auto listed = markcell::file_history(path);
+  REQUIRE(listed.size() == 2);
+  CHECK(listed[0].filename() == "base.20231114T221320Z-02.yaml");  // newest first
+  // Only this file's versions are its history: another file's and strays are not.
+  write_text((history / "stereo.20231114T221320Z.yaml").string(), "other");
+  write_text((history / "base.notadate.yaml").string(), "stray");
+  CHECK(markcell::file_history(path).size() == 2);
+
+  // A writer that fails leaves the file, the history and no temporary file behind.
+  CHECK_THROWS_WITH(markcell::replace_file_keeping_history(path,
+                                                           [](const std::string& temporary) {
+                                                             write_text(temporary, "half");
+                                                             throw std::runtime_error("disk full");
+                                                           }),
+                    "disk full");
+  CHECK(read_all(path) == "v3");
+  CHECK(markcell::file_history(path).size() == 2);
+  for (const auto& e : std::filesystem::directory_iterator(dir.path())) CHECK(e.path().filename().string()[0] != '.');
+
+  // Bounded: after 12 more versions a day apart, the newest kHistoryKept remain.
+  for (int i = 0; i < 12; ++i) {
+    set_mtime(path, 1700000000 + 86400 * (i + 1));
+    markcell::replace_file_keeping_history(path, write("v" + std::to_string(4 + i)));
+  }
+  const auto kept = markcell::file_history(path);
+  REQUIRE(kept.size() == markcell::kHistoryKept);
+  CHECK(kept.front().filename() == "base." + markcell::utc_compact(1700000000 + 86400 * 12) + ".yaml");
+  CHECK(read_all(kept.front()) == "v14");
+  CHECK(read_all(path) == "v15");
+  CHECK(std::filesystem::exists(history / "stereo.20231114T221320Z.yaml"));  // not base's: untouched
+
+  // No folder: said with the path.
+  CHECK_THROWS_WITH(markcell::replace_file_keeping_history(dir.path() / "none" / "x.yaml", write("x")),
+                    (dir.path() / "none" / "x.yaml").string() + ": its folder " + (dir.path() / "none").string() +
+                        " does not exist");
+}
+
+TEST_CASE("a crash while a state file is written leaves the previous version whole") {
+  markcell::test::TempDir dir;
+  const auto path = dir.path() / "stereo.yaml";
+  write_text(path.string(), "the calibration in use");
+  // A child killed (SIGKILL: no cleanup) half way through writing the new version.
+  const pid_t child = ::fork();
+  REQUIRE(child >= 0);
+  if (child == 0) {
+    markcell::replace_file_keeping_history(path, [](const std::string& temporary) {
+      write_text(temporary, "half of the new");
+      ::raise(SIGKILL);
+    });
+    ::_exit(0);
+  }
+  int status = 0;
+  REQUIRE(::waitpid(child, &status, 0) == child);
+  REQUIRE(WIFSIGNALED(status));
+  CHECK(WTERMSIG(status) == SIGKILL);
+  CHECK(read_all(path) == "the calibration in use");
+  // The next write takes over the dead one's temporary file.
+  markcell::replace_file_keeping_history(path, [](const std::string& t) { write_text(t, "new"); });
+  CHECK(read_all(path) == "new");
+  REQUIRE(markcell::file_history(path).size() == 1);
+  CHECK(read_all(markcell::file_history(path)[0]) == "the calibration in use");
 }

@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <cmath>
 #include <filesystem>
+#include <ctime>
 #include <fstream>
 #include <iostream>
 #include <cstdio>
@@ -17,6 +18,7 @@
 
 #include "draw.hpp"
 #include "sheet_mesh.hpp"
+#include "markcell/common/file_history.hpp"
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/recording.hpp"
 #include "markcell/rig/render.hpp"
@@ -401,10 +403,34 @@ TEST_CASE("calibrate-stereo recovers a known rig from rendered chessboard views"
   cv::imwrite((dir.path() / "noboard_right.png").string(), empty);
   cv::imwrite((dir.path() / "lonely_left.png").string(), empty);
   const std::string out = (dir.path() / "stereo.yaml").string();
+  const std::time_t before = std::time(nullptr);
   const auto run = test::run_command(std::string(MARKCELL_BINARY) + " calibrate-stereo --images " + dir.path().string() +
-                                     " --board 9x6 --square 0.05 --out " + out);
+                                     " --board 9x6 --square 0.05 --out " + out + " --left-id CAM-L-0042 --right-id 'CAM R 7'");
   INFO(run.output);
   REQUIRE(run.exit_code == 0);
+  // Its provenance: when (between the test's clock readings), by which build, for which
+  // cameras, and the per-view RMS the command printed, view by view.
+  const auto provenance = load_provenance(out);
+  REQUIRE(provenance);
+  std::tm when{};
+  REQUIRE(::strptime(provenance->calibrated_utc.c_str(), "%Y-%m-%dT%H:%M:%SZ", &when) != nullptr);
+  const std::time_t at = ::timegm(&when);
+  CHECK(at >= before);
+  CHECK(at <= std::time(nullptr));
+  CHECK(provenance->tool.rfind("markcell 0.1.0 (commit ", 0) == 0);
+  CHECK(provenance->tool.find(", calibrate-stereo)") != std::string::npos);
+  CHECK(provenance->left_camera == "CAM-L-0042");
+  CHECK(provenance->right_camera == "CAM R 7");
+  CHECK(provenance->rms_unit == "px");
+  REQUIRE(provenance->views.size() == 14);
+  for (const auto& v : provenance->views) {
+    char line[128];
+    std::snprintf(line, sizeof line, "  %-24s reprojection RMS %.3f px\n", v.name.c_str(), v.rms);
+    CHECK(run.output.find(line) != std::string::npos);
+  }
+  char overall[64];
+  std::snprintf(overall, sizeof overall, "RMS reprojection error: %.3f px", provenance->rms);
+  CHECK(run.output.find(overall) != std::string::npos);
   CHECK(run.output.find("skipped view noboard_.png: board not found in the left image") != std::string::npos);
   CHECK(run.output.find("unpaired image (skipped): lonely_left.png") != std::string::npos);
   CHECK(run.output.find("views used: 14") != std::string::npos);
@@ -420,6 +446,21 @@ TEST_CASE("calibrate-stereo recovers a known rig from rendered chessboard views"
   }
   const Eigen::AngleAxisd dR(got.X_CamR_CamL.linear() * truth.X_CamR_CamL.linear().transpose());
   CHECK(dR.angle() < 0.2 * M_PI / 180);
+  // Calibrated again: the first version kept whole in history/ beside it, named by its date.
+  const std::string first = [&] {
+    std::ifstream in(out, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  }();
+  const auto again = test::run_command(std::string(MARKCELL_BINARY) + " calibrate-stereo --images " + dir.path().string() +
+                                       " --board 9x6 --square 0.05 --out " + out);
+  INFO(again.output);
+  REQUIRE(again.exit_code == 0);
+  const auto kept = markcell::file_history(out);
+  REQUIRE(kept.size() == 1);
+  CHECK(again.output.find("kept the previous stereo.yaml as " + kept[0].string()) != std::string::npos);
+  std::ifstream kept_in(kept[0], std::ios::binary);
+  CHECK(std::string(std::istreambuf_iterator<char>(kept_in), {}) == first);
+  CHECK(load_provenance(out)->left_camera.empty());  // not given this time
   // Too few views: the command says how many it had and needed.
   test::TempDir few;
   cv::imwrite((few.path() / "a_left.png").string(), empty);
@@ -448,4 +489,43 @@ TEST_CASE("an absurd calibration is refused naming the key: a baseline of 1e300 
   const std::string fifo = (dir.path() / "fifo.yaml").string();
   REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);
   CHECK_THROWS_WITH(load_stereo_calibration(fifo), fifo + ": a FIFO, not read (a calibration file must be a regular file)");
+}
+
+TEST_CASE("a calibration's provenance round-trips, a file without one loads as before, a bad one is refused by key") {
+  test::TempDir dir;
+  const std::string path = (dir.path() / "stereo.yaml").string();
+  CalibrationProvenance p;
+  p.calibrated_utc = "2026-12-07T03:40:12Z";
+  p.tool = "markcell 0.1.0 (commit abc, calibrate-stereo)";
+  p.left_camera = "left: 1";  // YAML's own punctuation survives
+  p.rms = 0.213;
+  p.rms_unit = "px";
+  p.views = {{"view01", 0.2}, {"view02", 0.25}};
+  save_stereo_calibration(path, paper_rig(), &p);
+  const auto back = load_provenance(path);
+  REQUIRE(back);
+  CHECK(back->calibrated_utc == p.calibrated_utc);
+  CHECK(back->tool == p.tool);
+  CHECK(back->left_camera == "left: 1");
+  CHECK(back->right_camera.empty());
+  CHECK(back->rms == p.rms);
+  REQUIRE(back->views.size() == 2);
+  CHECK(back->views[1].name == "view02");
+  CHECK(back->views[1].rms == 0.25);
+  CHECK(load_stereo_calibration(path).baseline() == Approx(paper_rig().baseline()));
+  // The shipped calibrations have none.
+  CHECK_FALSE(load_provenance(test::source_path("config/calibration/marking_stereo.yaml")));
+  // Malformed: each named by file and key.
+  const auto with = [&](const std::string& provenance) {
+    std::ofstream(path) << "%YAML:1.0\n---\nprovenance:\n" << provenance;
+    return path;
+  };
+  CHECK_THROWS_WITH(load_provenance(with("   rms: -1\n   rms_unit: px\n")),
+                    path + ": key 'provenance.rms': expected a finite RMS of at least 0");
+  CHECK_THROWS_WITH(load_provenance(with("   rms: 0.2\n   rms_unit: furlong\n")),
+                    path + ": key 'provenance.rms_unit': expected px or mm");
+  CHECK_THROWS_WITH(load_provenance(with("   rms: 0.2\n   rms_unit: px\n   views: 3\n")),
+                    path + ": key 'provenance.views': expected a list");
+  CHECK_THROWS_WITH(load_provenance(with("   tool: [1, 2]\n   rms: 0.2\n   rms_unit: px\n")),
+                    path + ": key 'provenance.tool': expected a text");
 }

@@ -113,7 +113,7 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
   auto* seed_option = sim->add_option("--seed", o->sim_seed, "Scenario seed (noise, speed fluctuation, drops; default: the file's)");
   sim->add_option("--seconds", o->sim_seconds, "Shorten the scenario to this many seconds")->check(CLI::PositiveNumber);
   sim->add_option("--fps", o->sim_fps, "Frame rate of the generated recording (default: the scenario's, 30)")->check(CLI::PositiveNumber);
-  sim->add_option("--scanner", o->scanner_file, "Inspection scanner calibration (default: calibration/inspection_stereo.yaml next to the config)");
+  sim->add_option("--scanner", o->scanner_file, "Inspection scanner calibration (default: inspection_stereo.yaml beside the configuration's stereo calibration)");
   auto* replay = app.add_subcommand("replay", "Replay a recording through the cell in simulated time; score it when it has ground truth");
   replay->add_option("RECORDING", o->replay_recording, "Recording folder (vision/RECORDING.md)")->required()->check(CLI::ExistingDirectory);
   replay->add_option("--gpio-sim", o->rig_gpio_sim,
@@ -171,7 +171,7 @@ void add_rig_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals
     if (is_replay) return replay_command(*config, o->replay_recording, o->rig_out, options);
     std::string scanner_file = o->scanner_file;
     if (scanner_file.empty())
-      scanner_file = (std::filesystem::path(o->rig_config).parent_path() / "calibration" / "inspection_stereo.yaml").string();
+      scanner_file = (std::filesystem::path(config->calibration.stereo).parent_path() / "inspection_stereo.yaml").string();
     return sim_command(*config, o->sim_scenario, seed_option->count() > 0, o->sim_seed, o->sim_seconds, o->sim_fps, scanner_file, o->rig_out, options,
                        calibrate_board);
   };

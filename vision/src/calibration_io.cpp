@@ -139,7 +139,63 @@ StereoCalibration load_stereo_calibration(const std::string& path) {
   return c;
 }
 
-void save_stereo_calibration(const std::string& path, const StereoCalibration& c) {
+namespace {
+
+void write_provenance(cv::FileStorage& fs, const CalibrationProvenance* p) {
+  if (p == nullptr) return;
+  fs << "provenance" << "{";
+  fs << "calibrated_utc" << p->calibrated_utc << "tool" << p->tool;
+  fs << "left_camera" << p->left_camera << "right_camera" << p->right_camera;
+  fs << "rms" << p->rms << "rms_unit" << p->rms_unit;
+  fs << "views" << "[";
+  for (const auto& v : p->views) fs << "{" << "name" << v.name << "rms" << v.rms << "}";
+  fs << "]" << "}";
+}
+
+std::string read_text(const cv::FileNode& node, const std::string& path, const std::string& key) {
+  if (node.empty()) return "";
+  if (!node.isString()) fail(path, key, "expected a text");
+  return static_cast<std::string>(node);
+}
+
+double read_rms(const cv::FileNode& node, const std::string& path, const std::string& key) {
+  if (!node.isReal() && !node.isInt()) fail(path, key, "expected a number");
+  const double v = static_cast<double>(node);
+  if (!std::isfinite(v) || v < 0) fail(path, key, "expected a finite RMS of at least 0");
+  return v;
+}
+
+}  // namespace
+
+std::optional<CalibrationProvenance> load_provenance(const std::string& path) {
+  cv::FileStorage fs = open_for_read(path);
+  const cv::FileNode node = fs["provenance"];
+  if (node.empty()) return std::nullopt;
+  if (!node.isMap()) fail(path, "provenance", "expected a map");
+  CalibrationProvenance p;
+  p.calibrated_utc = read_text(node["calibrated_utc"], path, "provenance.calibrated_utc");
+  p.tool = read_text(node["tool"], path, "provenance.tool");
+  p.left_camera = read_text(node["left_camera"], path, "provenance.left_camera");
+  p.right_camera = read_text(node["right_camera"], path, "provenance.right_camera");
+  p.rms = read_rms(node["rms"], path, "provenance.rms");
+  p.rms_unit = read_text(node["rms_unit"], path, "provenance.rms_unit");
+  if (p.rms_unit != "px" && p.rms_unit != "mm") fail(path, "provenance.rms_unit", "expected px or mm");
+  const cv::FileNode views = node["views"];
+  if (!views.empty()) {
+    if (!views.isSeq()) fail(path, "provenance.views", "expected a list");
+    if (views.size() > kMaxProvenanceViews)
+      fail(path, "provenance.views", std::to_string(views.size()) + " views, more than " + std::to_string(kMaxProvenanceViews));
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      const std::string at = "provenance.views[" + std::to_string(i) + "]";
+      const cv::FileNode v = views[static_cast<int>(i)];
+      if (!v.isMap()) fail(path, at, "expected {name, rms}");
+      p.views.push_back({read_text(v["name"], path, at + ".name"), read_rms(v["rms"], path, at + ".rms")});
+    }
+  }
+  return p;
+}
+
+void save_stereo_calibration(const std::string& path, const StereoCalibration& c, const CalibrationProvenance* provenance) {
   cv::FileStorage fs(path, cv::FileStorage::WRITE);
   if (!fs.isOpened()) throw CalibrationError(path + ": cannot open for writing");
   cv::Mat K1, K2, R, T;
@@ -151,6 +207,7 @@ void save_stereo_calibration(const std::string& path, const StereoCalibration& c
   fs << "K1" << K1 << "D1" << (c.left.distortion.empty() ? cv::Mat::zeros(1, 5, CV_64F) : c.left.distortion);
   fs << "K2" << K2 << "D2" << (c.right.distortion.empty() ? cv::Mat::zeros(1, 5, CV_64F) : c.right.distortion);
   fs << "R" << R << "T" << T;
+  write_provenance(fs, provenance);
 }
 
 Eigen::Isometry3d load_pose(const std::string& path, const std::string& key) {
@@ -164,12 +221,14 @@ Eigen::Isometry3d load_pose(const std::string& path, const std::string& key) {
   return X;
 }
 
-void save_pose(const std::string& path, const std::string& key, const Eigen::Isometry3d& pose) {
+void save_pose(const std::string& path, const std::string& key, const Eigen::Isometry3d& pose,
+               const CalibrationProvenance* provenance) {
   cv::FileStorage fs(path, cv::FileStorage::WRITE);
   if (!fs.isOpened()) throw CalibrationError(path + ": cannot open for writing");
   cv::Mat m;
   cv::eigen2cv(Eigen::Matrix4d(pose.matrix()), m);
   fs << key << m;
+  write_provenance(fs, provenance);
 }
 
 }  // namespace markcell::vision

@@ -5,6 +5,7 @@
 #include <iostream>
 #include <memory>
 
+#include "markcell/host/calibration_state.hpp"
 #include "markcell/host/command.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/sim/plc_script.hpp"
@@ -16,6 +17,15 @@ int check_config_command(const std::string& file) {
   const auto errors = check_config(file, task_catalog());
   if (errors.empty()) {
     std::cout << file << ": valid\n";
+    // The calibrations it uses, by file, date and fit: the one in use named beside its
+    // earlier versions (markcell calibrations lists them).
+    if (const std::optional<CellConfig> config = load_or_report(file)) {
+      std::cout << "stereo calibration " << config->calibration.stereo << ": "
+                << calibration_summary(config->calibration.stereo) << "\n";
+      if (!config->calibration.base.empty())
+        std::cout << "base calibration " << config->calibration.base << ": " << calibration_summary(config->calibration.base)
+                  << "\n";
+    }
     return 0;
   }
   for (const auto& e : errors) std::cerr << e.to_string() << "\n";

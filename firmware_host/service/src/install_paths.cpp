@@ -14,6 +14,10 @@ bool running_installed() {
 
 std::string default_config_dir() { return running_installed() ? MARKCELL_INSTALLED_CONFIG_DIR : "config"; }
 
+std::string default_calibration_dir() {
+  return running_installed() ? std::string(MARKCELL_INSTALLED_STATE_DIR) + "/calibration" : "config/calibration";
+}
+
 std::string default_config_file() {
   return running_installed() ? std::string(MARKCELL_INSTALLED_CONFIG_DIR) + "/cell.yaml" : "config/cell.example.yaml";
 }

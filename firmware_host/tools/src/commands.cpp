@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include "markcell/common/log_escape.hpp"
+#include "markcell/host/calibration_state.hpp"
 #include "markcell/host/install_paths.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/rig/render.hpp"
@@ -31,7 +32,7 @@ namespace markcell::host {
 namespace {
 
 int calibrate_stereo_command(const std::string& folder, const std::string& board_text, double square,
-                             const std::string& out) {
+                             const std::string& out, const std::string& left_id, const std::string& right_id) {
   vision::BoardSpec board;
   char x = 0;
   if (std::sscanf(board_text.c_str(), "%d%c%d", &board.cols, &x, &board.rows) != 3 || x != 'x' || board.cols < 3 ||
@@ -64,8 +65,29 @@ int calibrate_stereo_command(const std::string& folder, const std::string& board
   std::printf("baseline: %.4f m\n", r.calibration.baseline());
   std::printf("focal lengths: left %.2f %.2f px, right %.2f %.2f px\n", r.calibration.left.K(0, 0), r.calibration.left.K(1, 1),
               r.calibration.right.K(0, 0), r.calibration.right.K(1, 1));
-  vision::save_stereo_calibration(out, r.calibration);
-  std::cout << "wrote " << out << "\n";
+  std::vector<vision::CalibrationProvenance::View> view_rms;
+  for (std::size_t i = 0; i < r.used.size(); ++i) view_rms.push_back({r.used[i], r.view_errors[i]});
+  const vision::CalibrationProvenance provenance =
+      make_provenance("calibrate-stereo", left_id, right_id, r.rms, "px", std::move(view_rms));
+  try {
+    write_calibration(out, [&](const std::string& file) { vision::save_stereo_calibration(file, r.calibration, &provenance); },
+                      std::cout);
+  } catch (const std::exception& e) {
+    std::cerr << "markcell calibrate-stereo: " << e.what() << "\n";
+    return kExitRuntime;
+  }
+  return 0;
+}
+
+// The ids the configuration names the cameras by, or the source when it names none.
+std::string camera_name(const CameraConfig& cameras, const drivers::CameraUnitSettings& unit) {
+  if (cameras.source == CameraSource::kAravis) return unit.id;
+  return cameras.source == CameraSource::kSimulated ? "simulated" : "recording";
+}
+
+int calibrations_command(const CellConfig& config) {
+  std::cout << calibration_listing("stereo", config.calibration.stereo);
+  if (!config.calibration.base.empty()) std::cout << calibration_listing("base", config.calibration.base);
   return 0;
 }
 
@@ -106,7 +128,7 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     // square to the left camera, its MFs where the panel model has them.
     const std::string config_dir = default_config_dir();
     const auto s = rig::find_scenario(scenario, config_dir + "/scenarios", 1);
-    const auto cal = vision::load_stereo_calibration(config_dir + "/calibration/marking_stereo.yaml");
+    const auto cal = vision::load_stereo_calibration(default_calibration_dir() + "/marking_stereo.yaml");
     cv::Mat reference;
     const rig::Panel shipped = rig::load_panel(config_dir + "/panels/" + s.panel_type + ".yaml");
     model = rig::reference_panel_type(s, shipped, cal, rig::RenderSettings{}, &reference);
@@ -207,14 +229,26 @@ int calibrate_base_command(const CellConfig& config, const std::string& out, std
               << "; " << out << " not written\n";
     return kExitRuntime;
   }
-  vision::save_pose(out, "X_Base_CamR", run.result.X_Base_CamR);
-  std::cout << "wrote X_Base_CamR to " << out << "\n";
+  std::vector<vision::CalibrationProvenance::View> poses;
+  for (const auto& p : run.result.poses)
+    if (!p.outlier) poses.push_back({p.name, p.rms_norm * 1e3});
+  const vision::CalibrationProvenance provenance =
+      make_provenance("calibrate-base", camera_name(config.cameras, config.cameras.left),
+                      camera_name(config.cameras, config.cameras.right), run.result.rms.norm() * 1e3, "mm", std::move(poses));
+  try {
+    write_calibration(out, [&](const std::string& file) { vision::save_pose(file, "X_Base_CamR", run.result.X_Base_CamR, &provenance); },
+                      std::cout);
+  } catch (const std::exception& e) {
+    std::cerr << "markcell calibrate-base: " << e.what() << "\n";
+    return kExitRuntime;
+  }
   return 0;
 }
 
 void add_tool_commands(CLI::App& app, Commands& out) {
   struct Options {
-    std::string cal_images, cal_board = "9x6", cal_out;
+    std::string cal_images, cal_board = "9x6", cal_out, cal_left_id, cal_right_id;
+    std::string calibrations_config = default_config_file();
     double cal_square = 0.04;
     std::string base_config = default_config_file(), base_out, base_images;
     std::uint64_t base_seed = 1;
@@ -237,13 +271,19 @@ void add_tool_commands(CLI::App& app, Commands& out) {
   calibrate->add_option("--images", o->cal_images, "Folder of image pairs: NAMEleftX.png with NAMErightX.png")->required()->check(CLI::ExistingDirectory);
   calibrate->add_option("--board", o->cal_board, "Inner corners, COLSxROWS")->required();
   calibrate->add_option("--square", o->cal_square, "Square size in metres")->required()->check(CLI::PositiveNumber);
-  calibrate->add_option("--out", o->cal_out, "Calibration file to write (OpenCV FileStorage YAML)")->required();
-  out.push_back({calibrate, [o] { return calibrate_stereo_command(o->cal_images, o->cal_board, o->cal_square, o->cal_out); }});
+  calibrate->add_option("--out", o->cal_out, "Calibration file to write (OpenCV FileStorage YAML); the one it replaces is kept in history/ beside it")->required();
+  calibrate->add_option("--left-id", o->cal_left_id, "The left camera's id or serial, kept in the file (devices.cameras.left.id)");
+  calibrate->add_option("--right-id", o->cal_right_id, "The right camera's id or serial, kept in the file");
+  out.push_back({calibrate, [o] {
+                   return calibrate_stereo_command(o->cal_images, o->cal_board, o->cal_square, o->cal_out, o->cal_left_id,
+                                                   o->cal_right_id);
+                 }});
+
 
   auto* calibrate_base = app.add_subcommand(
       "calibrate-base", "Fit X_Base_CamR from a checkerboard on the gripper at the configured arm poses (simulated arm: the rig)");
   calibrate_base->add_option("--config,-c", o->base_config, std::string("Cell configuration (YAML): devices, base_calibration section") + kDefaultConfigHelp);
-  calibrate_base->add_option("--out", o->base_out, "Calibration file to write X_Base_CamR to (only when within the limits)")->required();
+  calibrate_base->add_option("--out", o->base_out, "Calibration file to write X_Base_CamR to (only when within the limits); the one it replaces is kept in history/ beside it")->required();
   calibrate_base->add_option("--images", o->base_images, "Also save the stereo pairs taken into this folder");
   calibrate_base->add_option("--seed", o->base_seed, "The rig's calibration-board scenario seed (simulated arm only)");
   out.push_back({calibrate_base, [o] {
@@ -251,6 +291,10 @@ void add_tool_commands(CLI::App& app, Commands& out) {
                      return calibrate_base_command(config, o->base_out, o->base_seed, o->base_images, "");
                    });
                  }});
+
+  auto* calibrations = app.add_subcommand("calibrations", "List the calibrations in use: when and by what each was made, its fit, its earlier versions");
+  calibrations->add_option("--config,-c", o->calibrations_config, std::string("Cell configuration (YAML): the calibration section") + kDefaultConfigHelp);
+  out.push_back({calibrations, [o] { return with_config(o->calibrations_config, calibrations_command); }});
 
   auto* record = app.add_subcommand("record", "Write live stereo pairs from the configured Aravis cameras as a recording (vision/RECORDING.md)");
   record->add_option("--config,-c", o->record_config, std::string("Cell configuration (devices.cameras: ids, size, rate, trigger; calibration.stereo)") + kDefaultConfigHelp);

@@ -8,9 +8,13 @@
 //                               right camera's frame as p_R = R p_L + T (metres)
 // Camera to robot base (what `markcell calibrate-base` writes):
 //   X_Base_CamR                 4x4 homogeneous rigid transform (metres)
+// Both tools add where the calibration came from (CalibrationProvenance), under the key
+// `provenance`; a file without it (made by hand or by another tool) loads as before.
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include <Eigen/Geometry>
 #include <opencv2/core.hpp>
@@ -42,11 +46,40 @@ struct StereoCalibration {
 // CalibrationError naming the file and what is wrong.
 cv::FileStorage open_yaml_storage(const std::string& path, std::size_t max_bytes, std::string_view what);
 
+// Where a calibration came from, kept in its file so the file says it wherever it is
+// copied: when, by which program, for which cameras, and how well it fitted.
+//   provenance:
+//     calibrated_utc: "2026-12-07T03:40:12Z"
+//     tool: "markcell 0.1.0 (commit 5661ec5, calibrate-stereo)"
+//     left_camera: "...", right_camera: "..."   the cameras' ids or serials ("" not given)
+//     rms: 0.213, rms_unit: px                  stereo: reprojection px; base: 3-D residual mm
+//     views: [{name: view01, rms: 0.2}, ...]    per view (stereo) or per arm pose (base)
+struct CalibrationProvenance {
+  std::string calibrated_utc;
+  std::string tool;
+  std::string left_camera, right_camera;
+  double rms = 0;
+  std::string rms_unit;  // px or mm
+  struct View {
+    std::string name;
+    double rms = 0;
+  };
+  std::vector<View> views;
+};
+inline constexpr std::size_t kMaxProvenanceViews = 1000;
+
 // Throw CalibrationError naming the file and the key that is missing or malformed.
 StereoCalibration load_stereo_calibration(const std::string& path);
-void save_stereo_calibration(const std::string& path, const StereoCalibration& calibration);
+void save_stereo_calibration(const std::string& path, const StereoCalibration& calibration,
+                             const CalibrationProvenance* provenance = nullptr);
 
 Eigen::Isometry3d load_pose(const std::string& path, const std::string& key);
-void save_pose(const std::string& path, const std::string& key, const Eigen::Isometry3d& pose);
+void save_pose(const std::string& path, const std::string& key, const Eigen::Isometry3d& pose,
+               const CalibrationProvenance* provenance = nullptr);
+
+// The file's provenance; nullopt when it has none. Throws CalibrationError naming the
+// file and key of a malformed one (a wrong type, a non-finite or negative RMS, more than
+// kMaxProvenanceViews views).
+std::optional<CalibrationProvenance> load_provenance(const std::string& path);
 
 }  // namespace markcell::vision

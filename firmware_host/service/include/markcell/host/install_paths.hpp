@@ -13,6 +13,9 @@ bool running_installed();
 
 // The configuration folder: /etc/markcell installed, config otherwise.
 std::string default_config_dir();
+// The calibrations (state, not configuration: docs/calibrations.md):
+// /var/lib/markcell/calibration installed, config/calibration otherwise.
+std::string default_calibration_dir();
 // The cell configuration: /etc/markcell/cell.yaml installed, config/cell.example.yaml otherwise.
 std::string default_config_file();
 // Said in each --config option's help (the man page is made by a build folder's binary).

@@ -93,7 +93,13 @@ FileReplacement replace_file_keeping_history(const fs::path& path, const std::fu
   if (!fs::is_directory(folder, ec)) throw std::runtime_error(path.string() + ": its folder " + folder.string() + " does not exist");
   if (fs::exists(path, ec) && !fs::is_regular_file(path, ec))
     throw std::runtime_error(path.string() + ": not a regular file; nothing written");
-  const fs::path temporary = folder / ("." + path.stem().string() + ".partial" + path.extension().string());
+  // Built by appending: GCC 12 at -O3 (the arm64 build) takes `"." + std::string&&` for an
+  // overlapping memcpy (-Wrestrict, a false positive).
+  std::string hidden(".");
+  hidden += path.stem().string();
+  hidden += ".partial";
+  hidden += path.extension().string();
+  const fs::path temporary = folder / hidden;
   try {
     write(temporary.string());
   } catch (...) {

@@ -120,6 +120,14 @@ check grep -q 'running on the real clock' "$work/run.log"
 # files as markcell or nothing at all.
 if [ -e /var/lib/markcell/results.jsonl ]; then check test "$(stat -c %U /var/lib/markcell/results.jsonl)" = markcell; fi
 
+# The results file rotated by the package's logrotate snippet, by the real logrotate (as
+# its daily timer would, forced): the file moved aside, a new one made for the user.
+(as_service sh -c 'printf "{\"cell\": \"rotation test\"}\n" >> /var/lib/markcell/results.jsonl')
+logrotate -f -s "$work/logrotate.state" /etc/logrotate.d/markcell
+check grep -q "rotation test" /var/lib/markcell/results.jsonl.1
+check test "$(stat -c '%U:%G %a' /var/lib/markcell/results.jsonl)" = "markcell:markcell 640"
+check test ! -s /var/lib/markcell/results.jsonl
+
 # A calibration replaced as the service user (calibrate-base on the simulated arm): the
 # seed kept in history/, both listed by `markcell calibrations`, named by check-config.
 check test "$( (as_service markcell calibrate-base --out /var/lib/markcell/calibration/base.yaml) | tail -1)" = \

@@ -568,3 +568,71 @@ TEST_CASE_METHOD(Fixture, "a nesting bomb, an empty file, a second document, a k
   REQUIRE(m.size() == 1);
   CHECK(m[0] == file() + ":39:3: panel_types.door: declared twice in this map (yaml would keep only one)");
 }
+
+TEST_CASE_METHOD(Fixture, "recipes: a panel type's process settings over the spray and marking sections, each checked at its key") {
+  const std::string two = replace(kValid, "  door: {macro_features: 10}\n",
+                                  "  door: {macro_features: 10, recipe: {standoff_m: 0.18, pulse_ms: 60, settle_mm: 1.0, "
+                                  "placement_limit_mm: 0.5}}\n  fender: {macro_features: 10}\n");
+  const CellConfig c =
+      load_config(dir.write("cell.yaml", two + "marking: {standoff_m: 0.22, command_lead_ms: 40}\n"), task_catalog());
+  REQUIRE(c.panel_types.size() == 2);
+  const PanelTypeConfig& door = c.panel_types[0];
+  const PanelTypeConfig& fender = c.panel_types[1];
+  CHECK(door.has_recipe);
+  CHECK_FALSE(fender.has_recipe);
+  CHECK(door.marking.standoff == Approx(0.18));
+  CHECK(door.pulse == millis(60));
+  CHECK(door.marking.settle_position == Approx(0.001));
+  CHECK(door.marking.intercalibration.max_placement_sigma == Approx(0.0005));
+  CHECK(door.marking.command_lead == millis(40));  // not a recipe's key: the section's, for every type
+  CHECK(fender.marking.standoff == Approx(0.22));  // no recipe: the sections' values
+  CHECK(fender.pulse == millis(80));
+  CHECK(fender.marking.settle_position == c.marking.settle_position);
+
+  // A key out of range and a key a recipe cannot set: each at its position, the keys it can
+  // named; a pulse the valve would refuse, against the spray section's limits.
+  auto m = messages(check(replace(kValid, "  door: {macro_features: 10}\n",
+                                  "  door: {macro_features: 10, recipe: {standoff_m: 5, command_lead_ms: 10}}\n")));
+  REQUIRE(m.size() == 2);
+  CHECK(m[0] == file() + ":38:54: panel_types.door.recipe.command_lead_ms: unknown key 'command_lead_ms' (expected one of: "
+                         "pulse_ms, standoff_m, settle_mm, settle_deg, settle_ms, defect_timeout_s, placement_limit_mm, "
+                         "placement_hold_s)");
+  CHECK(m[1] == file() + ":38:51: panel_types.door.recipe.standoff_m: expected a number in [0.01, 1], got 5");
+  m = messages(check(replace(kValid, "  door: {macro_features: 10}\n", "  door: {macro_features: 10, recipe: {pulse_ms: 600}}\n")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":38:49: panel_types.door.recipe.pulse_ms: 600 ms is outside the valve's limits, "
+                         "spray.min_pulse_ms 5 to spray.max_pulse_ms 500");
+}
+
+TEST_CASE_METHOD(Fixture, "a reload takes the recipes the file gives now, and refuses a file that is invalid or has other panel types") {
+  const std::string with_recipe =
+      replace(kValid, "  door: {macro_features: 10}\n", "  door: {macro_features: 10, recipe: {standoff_m: 0.18}}\n");
+  const CellConfig running = load_config(dir.write("cell.yaml", with_recipe), task_catalog());
+  // Edited: a new stand-off for the door, and a marking section's key (that one takes a restart).
+  dir.write("cell.yaml", replace(with_recipe, "standoff_m: 0.18", "standoff_m: 0.16, settle_ms: 80") +
+                             "marking: {standoff_m: 0.30, settle_mm: 2.0}\n");
+  const std::vector<PanelTypeConfig> reloaded = reload_recipes(running, task_catalog());
+  REQUIRE(reloaded.size() == 1);
+  CHECK(reloaded[0].marking.standoff == Approx(0.16));
+  CHECK(reloaded[0].marking.settle_time == millis(80));
+  CHECK(reloaded[0].marking.settle_position == running.marking.settle_position);  // the running section's, not 2 mm
+  // Invalid now: every error, nothing taken.
+  dir.write("cell.yaml", replace(with_recipe, "standoff_m: 0.18", "standoff_m: 7"));
+  try {
+    reload_recipes(running, task_catalog());
+    FAIL("an invalid file was taken");
+  } catch (const ConfigInvalid& e) {
+    REQUIRE(e.errors().size() == 1);
+    CHECK(e.errors()[0].to_string() == file() + ":38:51: panel_types.door.recipe.standoff_m: expected a number in [0.01, 1], got 7");
+  }
+  // Another panel type: a restart's business.
+  dir.write("cell.yaml", replace(with_recipe, "  door: {", "  hood: {"));
+  try {
+    reload_recipes(running, task_catalog());
+    FAIL("changed panel types were taken");
+  } catch (const ConfigInvalid& e) {
+    REQUIRE(e.errors().size() == 1);
+    CHECK(e.errors()[0].to_string() == file() + ": panel_types: the panel types changed (their names, order, files or "
+                                                "macro_features): that takes a restart (systemctl restart markcell)");
+  }
+}

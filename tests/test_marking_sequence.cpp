@@ -8,10 +8,13 @@
 // lines, and what the arm was told.
 #include <catch2/catch.hpp>
 
+#include <array>
+
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "alloc_guard.hpp"
 #include "markcell/common/triple_buffer.hpp"
 #include "markcell/control/exec_clock.hpp"
 #include "markcell/control/executive.hpp"
@@ -304,4 +307,59 @@ TEST_CASE("no cycle enable: a panel and a record wait, nothing starts until the 
   h.enable(true, millis(3000));
   h.run_to(millis(3100));
   CHECK(h.marking.state() == MarkingState::kAcquire);
+}
+
+TEST_CASE("recipes: each panel runs on its type's, a new set from the next panel taken on, never mid-panel") {
+  Harness h;
+  MarkingParams door = Harness::params(), fender = Harness::params();
+  door.standoff = 0.15;
+  door.timing.pulse = millis(60);
+  fender.standoff = 0.25;
+  REQUIRE(h.marking.set_recipes(std::vector<MarkingParams>{door, fender}));
+  PanelJob first = record("f-1", 1);
+  first.panel_type.assign("fender");
+  first.panel_type_index = 1;
+  REQUIRE(h.marking.offer_job(first));
+  h.enable(true, 0);
+  h.panel(true, millis(10));
+  h.run_to(millis(100));
+  REQUIRE(h.marking.state() == MarkingState::kAcquire);
+  CHECK(h.marking.panel_params().standoff == 0.25);
+  // A reload mid-panel (the service's thread): this panel keeps its own.
+  MarkingParams fender2 = fender;
+  fender2.standoff = 0.30;
+  const std::array<MarkingParams, 2> reloaded{door, fender2};
+  {
+    markcell::test::AllocationGuard guard;
+    REQUIRE(h.marking.set_recipes(reloaded));
+    CHECK(guard.allocations_on_this_thread() == 0);
+  }
+  h.run_to(millis(300));
+  CHECK(h.marking.panel_params().standoff == 0.25);
+  h.panel(false, millis(400));
+  h.run_to(millis(1000));
+  REQUIRE(h.marking.state() == MarkingState::kIdle);
+  // The next fender: the new set; taking it allocates nothing.
+  PanelJob second = first;
+  second.panel_id.assign("f-2");
+  REQUIRE(h.marking.offer_job(second));
+  {
+    markcell::test::AllocationGuard guard;
+    h.panel(true, millis(1100));
+    h.run_to(millis(1200));
+    CHECK(guard.allocations_on_this_thread() == 0);
+  }
+  REQUIRE(h.marking.state() == MarkingState::kAcquire);
+  CHECK(h.marking.panel_params().standoff == 0.30);
+  h.panel(false, millis(1300));
+  h.run_to(millis(2000));
+  // A door: its own stand-off and pulse.
+  REQUIRE(h.marking.offer_job(record("d-1", 1)));  // panel_type_index 0
+  h.panel(true, millis(2100));
+  h.run_to(millis(2200));
+  CHECK(h.marking.panel_params().standoff == 0.15);
+  CHECK(h.marking.panel_params().timing.pulse == millis(60));
+  // More panel types than a cell knows: refused, the set unchanged.
+  const std::vector<MarkingParams> too_many(kMaxPanelTypes + 1, fender2);
+  CHECK_FALSE(h.marking.set_recipes(too_many));
 }

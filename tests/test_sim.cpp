@@ -103,6 +103,46 @@ TEST_CASE("markcell sim paper-door: all three dings marked within the radius, no
   for (auto p = log.find("valve close"); p != std::string::npos; p = log.find("valve close", p + 1)) ++closes;
   CHECK(opens == 3);
   CHECK(closes == 3);
+  // Each spray as the simulated world saw it: the nozzle at the configured stand-off from
+  // the true surface, along its axis (within the settle tolerance and the prediction's
+  // error), and the valve open for the configured pulse (to the 1 ms tick).
+  const host::CellConfig config = host::load_config(source_path("config/cell.example.yaml"), host::task_catalog());
+  const auto report = parse_json(json);
+  REQUIRE(report["sprays"].size() == 3);
+  for (const auto& spray : report["sprays"]) {
+    INFO(spray.dump());
+    CHECK(std::abs(spray["standoff_mm"].get<double>() - config.marking.standoff * 1000) < 4.0);
+    CHECK(std::abs(spray["open_ms"].get<double>() - static_cast<double>(config.spray.pulse) / 1e6) <= 1.0);
+  }
+}
+
+TEST_CASE("a panel type's recipe: the door sprayed at its own stand-off and pulse, by the rig's truth") {
+  // The example configuration with a recipe for the door (the rest as shipped).
+  TempDir dir;
+  const auto config_dir = dir.path() / "config";
+  std::filesystem::copy(source_path("config"), config_dir, std::filesystem::copy_options::recursive);
+  const std::string config = (config_dir / "cell.example.yaml").string();
+  std::string text = read_file(config);
+  const std::string door = "  door:   {macro_features: 10, file: panels/door.yaml}";
+  REQUIRE(text.find(door) != std::string::npos);
+  text.replace(text.find(door), door.size(),
+               "  door:   {macro_features: 10, file: panels/door.yaml, recipe: {standoff_m: 0.16, pulse_ms: 50}}");
+  std::ofstream(config) << text;
+  const std::string out = (dir.path() / "run").string();
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " sim paper-door --seconds 3 --fps 10 -c " + config +
+                             " --one-predictor -q --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  const std::string json = read_file(out + "/report.json");
+  INFO(json);
+  CHECK(json_number(json, "defects", "marked") == 3);
+  const auto report = parse_json(json);
+  REQUIRE(report["sprays"].size() == 3);
+  for (const auto& spray : report["sprays"]) {
+    INFO(spray.dump());
+    CHECK(std::abs(spray["standoff_mm"].get<double>() - 160.0) < 4.0);
+    CHECK(std::abs(spray["open_ms"].get<double>() - 50.0) <= 1.0);
+  }
 }
 
 // can.log is real candump -L (docs/rig.md, "The command logs"): can-utils' log2asc converts

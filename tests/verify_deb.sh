@@ -36,6 +36,7 @@ if grep -q markcell-select-mfs "$work/files"; then echo "markcell holds the wind
 dpkg-deb -f "$window_deb" Depends | grep -q "markcell (= " || { echo "markcell-select-mfs does not depend on markcell"; fail=1; }
 dpkg-deb -e "$deb" "$work/control"
 grep -qx /etc/markcell/cell.yaml "$work/control/conffiles" || { echo "cell.yaml is not a conffile"; fail=1; }
+grep -qx /etc/logrotate.d/markcell "$work/control/conffiles" || { echo "the logrotate snippet is not a conffile"; fail=1; }
 # Calibrations are state, never conffiles: a purge must not take an edited one.
 if grep -q "^/etc/markcell/calibration/" "$work/control/conffiles"; then echo "a calibration is a conffile"; fail=1; fi
 grep -q "/var/lib/markcell/calibration" "$work/control/postinst" || { echo "postinst does not seed the calibrations"; fail=1; }

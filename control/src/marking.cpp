@@ -204,11 +204,26 @@ TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
   return TaskResult::kOk;
 }
 
+bool MarkingSequence::set_recipes(std::span<const MarkingParams> per_panel_type) {
+  if (per_panel_type.size() > static_cast<std::size_t>(kMaxPanelTypes)) return false;
+  RecipeTable& table = recipes_.write_slot();
+  table.per_type.clear();
+  for (const MarkingParams& p : per_panel_type) table.per_type.push_back(with_unit_line_direction(p));
+  recipes_.publish();
+  return true;
+}
+
 void MarkingSequence::take_job(Nanos now) {
   // The waiting record becomes the panel's job (the mailbox is free for the next) and its
   // result starts: every defect listed, none yet sprayed or skipped.
   job_ = mailbox_;
   job_waiting_.store(false, std::memory_order_release);
+  // The panel's own process settings: its type's recipe, the newest set (a copy of
+  // fixed size), kept to the panel's end.
+  recipes_.update();
+  const RecipeTable& recipes = recipes_.read();
+  if (job_.panel_type_index >= 0 && job_.panel_type_index < recipes.per_type.ssize())
+    params_ = recipes.per_type[static_cast<std::size_t>(job_.panel_type_index)];
   result_ = PanelResult{};
   result_.serial = completed_.load(std::memory_order_relaxed) + 1;
   result_.panel_id = job_.panel_id.view();

@@ -321,7 +321,8 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
                            std::to_string(nozzle->total()) + " valve openings not scored (the newest " +
                            std::to_string(nozzle->kept()) + " kept)");
     for (std::size_t i = nozzle->total() - nozzle->kept(); i < nozzle->total(); ++i)
-      sprays.push_back({nozzle->spray(i).time, X_CamR_Base * control::to_isometry(nozzle->spray(i).tool)});
+      sprays.push_back({nozzle->spray(i).time, X_CamR_Base * control::to_isometry(nozzle->spray(i).tool),
+                        nozzle->spray(i).open_for});
   }
   // Each panel is scored on the sprays from its start to the next panel's (the first's
   // from the run's start, the last's to its end), so none is lost or counted twice.

@@ -158,7 +158,9 @@ Json run_json(const PredictorRun& r) {
     sprays.push_back(Json{{"t_s", num(to_seconds(s.time), 4)},
                           {"defect", s.nearest_defect},
                           {"distance_mm", num(s.distance * 1000)},
-                          {"hit", s.hit}});
+                          {"hit", s.hit},
+                          {"standoff_mm", known_or_null(s.on_panel, num(s.standoff * 1000))},
+                          {"open_ms", known_or_null(s.open_for >= 0, num(static_cast<double>(s.open_for) / 1e6))}});
   return Json{
       {"predictor", r.predictor},
       {"defects",

@@ -22,6 +22,7 @@ Score score(const rig::Panel* panel, const std::function<Eigen::Isometry3d(Nanos
   for (const auto& spray : sprays) {
     SprayResult r;
     r.time = spray.time;
+    r.open_for = spray.open_for;
     const Eigen::Isometry3d X_CamR_Panel = X_CamR_Panel_at(spray.time);
     const Eigen::Isometry3d X_Panel_Nozzle = X_CamR_Panel.inverse() * spray.X_CamR_Nozzle;
     const Eigen::Vector3d o = X_Panel_Nozzle.translation();
@@ -29,6 +30,7 @@ Score score(const rig::Panel* panel, const std::function<Eigen::Isometry3d(Nanos
     const double t = panel != nullptr ? rig::intersect_panel(*panel, o, d) : 1.0;
     if (t > 0) {
       r.on_panel = panel != nullptr;
+      if (r.on_panel) r.standoff = t;  // d is a unit vector
       const Eigen::Vector3d p_Panel = o + t * d;
       r.p_CamR = X_CamR_Panel * p_Panel;
       double best = std::numeric_limits<double>::infinity();

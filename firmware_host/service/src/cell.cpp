@@ -83,14 +83,33 @@ drivers::SimArmLimits sim_arm_limits(const ArmConfig& arm) {
   return limits;
 }
 
-control::ArmTimingModel arm_timing_model(const CellConfig& config) {
-  control::ArmTimingModel m = config.marking.timing;  // its plan settle and defect timeout
+// `marking`'s plan settle and defect timeout, the arm's limits and the pulse.
+control::ArmTimingModel arm_timing_model(const CellConfig& config, const control::ArmTimingModel& marking, Nanos pulse) {
+  control::ArmTimingModel m = marking;
   m.max_speed = config.arm.limits.max_tcp_speed;
   m.max_accel = config.arm.limits.max_tcp_accel;
   m.reach = config.arm.limits.reach;
-  m.pulse = config.spray.pulse;
+  m.pulse = pulse;
   return m;
 }
+
+control::ArmTimingModel arm_timing_model(const CellConfig& config) {
+  return arm_timing_model(config, config.marking.timing, config.spray.pulse);
+}
+
+namespace {
+
+// A marking section (the configuration's, or a panel type's with its recipe) completed
+// with what the other sections give it. X_Base_CamR is the cell's, read at start-up.
+control::MarkingParams assemble_marking(const CellConfig& config, control::MarkingParams m, Nanos pulse,
+                                        const Eigen::Isometry3d& X_Base_CamR) {
+  m.X_Base_CamR = X_Base_CamR;
+  m.timing = arm_timing_model(config, m.timing, pulse);
+  m.require_result_ack = !config.results_file.empty();
+  return m;
+}
+
+}  // namespace
 
 std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::unique_ptr<drivers::SocketCanBus>& bus_out) {
   switch (arm.transport) {
@@ -311,11 +330,10 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     vision_->faults = &faults_;
   }
   if (has_task("marking")) {
-    // The `marking:` section as configured, and what other sections and files give it.
-    control::MarkingParams mp = config.marking;
-    mp.X_Base_CamR = X_Base_CamR_;
-    mp.timing = arm_timing_model(config);
-    mp.require_result_ack = !config.results_file.empty();
+    // The `marking:` section as configured, and what other sections and files give it;
+    // the same for each panel type's recipe (the section with its recipe over it).
+    const control::MarkingParams mp = assemble_marking(config, config.marking, config.spray.pulse, X_Base_CamR_);
+    const std::vector<control::MarkingParams> per_type = recipes(config);
     if (vision_) vision_->limits = mp.intercalibration;  // its fits are the marking sequence's
     control::PlcLineMap lines;
     lines.busy = gpio_line(LineRole::kPlcBusy);
@@ -323,6 +341,9 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     lines.fault = gpio_line(LineRole::kPlcFault);
     marking_ = std::make_unique<control::MarkingSequence>(mp, *arm_link_, *spray_valve_, *gpio_, lines, *plc_io_,
                                                           *estimates_, *tracker_requests_);
+    if (!marking_->set_recipes(per_type))
+      throw std::invalid_argument(config.file + ": " + std::to_string(per_type.size()) + " panel types, at most " +
+                                  std::to_string(control::kMaxPanelTypes));
   }
 
   executive_ = std::make_unique<control::Executive>(config.executive, *clock_, safe_stop_);
@@ -368,6 +389,16 @@ void Cell::use_frame_source(std::unique_ptr<vision::FrameSource> source) {
   if (!vision_ || started_) throw std::logic_error("a frame source needs the vision task and must be set before start()");
   frame_source_ = std::move(source);
   vision_->source = frame_source_.get();
+}
+
+std::vector<control::MarkingParams> Cell::recipes(const CellConfig& config) const {
+  std::vector<control::MarkingParams> per_type;
+  for (const PanelTypeConfig& panel : config.panel_types) per_type.push_back(assemble_marking(config, panel.marking, panel.pulse, X_Base_CamR_));
+  return per_type;
+}
+
+bool Cell::reload_recipes(const CellConfig& config) {
+  return marking_ != nullptr && marking_->set_recipes(recipes(config));
 }
 
 sim::CommandLogText Cell::command_log_text() const {

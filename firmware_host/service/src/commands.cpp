@@ -34,7 +34,12 @@ int check_config_command(const std::string& file) {
 }
 
 int run_command(const std::string& file, const std::string& clock_name, double seconds, const std::string& plc_script,
-                const sigset_t& signals) {
+                const sigset_t& stop_signals) {
+  // SIGHUP reloads (systemctl reload markcell): blocked before the cell's threads exist
+  // (they inherit the mask, so none of them is ended by it) and taken by the service loop.
+  sigset_t signals = stop_signals;
+  sigaddset(&signals, SIGHUP);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   const std::optional<CellConfig> loaded = load_or_report(file);
   if (!loaded) return kExitConfig;
   const CellConfig& config = *loaded;

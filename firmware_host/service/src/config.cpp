@@ -612,12 +612,16 @@ void read_calibration(Reader& r, const YAML::Node& node, CellConfig& cfg) {
 void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
   const std::string P = "panel_types";
   if (!r.named_map(node, P)) return;
+  if (node.size() > static_cast<std::size_t>(control::kMaxPanelTypes)) {
+    r.error(node, P, std::to_string(node.size()) + " panel types, at most " + std::to_string(control::kMaxPanelTypes));
+    return;
+  }
   for (const auto& kv : node) {
     const std::string name = kv.first.Scalar();
     const std::string TP = P + "." + name;
     PanelTypeConfig panel;
     panel.name = name;
-    read_params(r, kv.second, TP, panel, {"file"});
+    read_params(r, kv.second, TP, panel, {"file", "recipe"});
     if (kv.second.IsMap()) {
       if (kv.second["file"].IsDefined()) {
         r.existing_file(kv.second, TP, "file", panel.file);
@@ -637,6 +641,31 @@ void read_panel_types(Reader& r, const YAML::Node& node, CellConfig& cfg) {
       }
     }
     cfg.panel_types.push_back(panel);
+  }
+}
+
+// Each panel type's process settings: the `spray:` and `marking:` sections' (read
+// before), with its `recipe` over them. Its pulse within the valve's limits.
+void read_recipes(Reader& r, const YAML::Node& types, CellConfig& cfg) {
+  for (PanelTypeConfig& panel : cfg.panel_types) {
+    RecipeParams recipe{cfg.spray, cfg.marking};
+    const YAML::Node type = types.IsDefined() && types.IsMap() ? types[panel.name] : YAML::Node();
+    if (type.IsDefined() && type.IsMap() && type["recipe"].IsDefined()) {
+      const std::string RP = "panel_types." + panel.name + ".recipe";
+      const std::size_t errors_before = r.error_count();
+      read_params(r, type["recipe"], RP, recipe);
+      panel.has_recipe = true;
+      if (r.error_count() == errors_before &&
+          (recipe.spray.pulse < cfg.spray.min_pulse || recipe.spray.pulse > cfg.spray.max_pulse)) {
+        char message[160];
+        std::snprintf(message, sizeof message, "%g ms is outside the valve's limits, spray.min_pulse_ms %g to spray.max_pulse_ms %g",
+                      static_cast<double>(recipe.spray.pulse) / 1e6, static_cast<double>(cfg.spray.min_pulse) / 1e6,
+                      static_cast<double>(cfg.spray.max_pulse) / 1e6);
+        r.error(type["recipe"]["pulse_ms"], RP + ".pulse_ms", message);
+      }
+    }
+    panel.marking = recipe.marking;
+    panel.pulse = recipe.spray.pulse;
   }
 }
 
@@ -690,17 +719,46 @@ std::vector<ConfigError> check_config(const std::string& path, TaskTable known_t
   return errors;
 }
 
-CellConfig load_config(const std::string& path, TaskTable known_tasks) {
-  std::string text;
+namespace {
+
+std::string read_config_text(const std::string& path) {
   try {
-    text = read_bounded_file(path, kMaxConfigBytes, "a cell configuration");
+    return read_bounded_file(path, kMaxConfigBytes, "a cell configuration");
   } catch (const FileRefused& e) {
     // The message starts with the path; the error names it once.
     std::string what = e.what();
     if (what.rfind(path + ": ", 0) == 0) what.erase(0, path.size() + 2);
     throw ConfigInvalid({ConfigError{path, 0, 0, "", what}});
   }
-  return load_config_text(text, path, known_tasks);
+}
+
+}  // namespace
+
+CellConfig load_config(const std::string& path, TaskTable known_tasks) {
+  return load_config_text(read_config_text(path), path, known_tasks);
+}
+
+std::vector<PanelTypeConfig> reload_recipes(const CellConfig& running, TaskTable known_tasks) {
+  // The file as it is now, read once: valid as a whole, or nothing changes.
+  const std::string text = read_config_text(running.file);
+  const CellConfig fresh = load_config_text(text, running.file, known_tasks);
+  bool same = fresh.panel_types.size() == running.panel_types.size();
+  for (std::size_t i = 0; same && i < fresh.panel_types.size(); ++i) {
+    const PanelTypeConfig &a = fresh.panel_types[i], &b = running.panel_types[i];
+    same = a.name == b.name && a.file == b.file && a.macro_features == b.macro_features;
+  }
+  if (!same)
+    throw ConfigInvalid({ConfigError{running.file, 0, 0, "panel_types",
+                                     "the panel types changed (their names, order, files or macro_features): "
+                                     "that takes a restart (systemctl restart markcell)"}});
+  // Its recipes over the running spray and marking sections: those sections' own keys,
+  // like every other section, change with a restart only.
+  std::vector<ConfigError> errors;
+  Reader r(running.file, errors);
+  CellConfig out = running;
+  read_recipes(r, static_cast<const YAML::Node&>(YAML::Load(text))["panel_types"], out);
+  if (!errors.empty()) throw ConfigInvalid(std::move(errors));
+  return out.panel_types;
 }
 
 std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
@@ -783,6 +841,7 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
   if (const auto p = section("panel_types")) read_panel_types(r, *p, cfg);
   if (const auto v = section("vision")) read_params(r, *v, "vision", cfg.vision);
   if (const auto m = section("marking")) read_params(r, *m, "marking", cfg.marking);
+  read_recipes(r, static_cast<const YAML::Node&>(root)["panel_types"], cfg);
   if (const auto b = section("base_calibration")) read_base_calibration(r, *b, cfg.base_calibration);
 
   // Simulated devices are advanced by the sim_world task: one without the other is a

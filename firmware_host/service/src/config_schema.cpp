@@ -210,8 +210,13 @@ std::string config_schema_json(TaskTable known_tasks) {
       cal.add_object("base", text_item("OpenCV FileStorage: X_Base_CamR (4x4)"), true);
       body = cal.object(s.doc);
     } else if (s.key == "panel_types") {
-      body = named_map(s.doc, declared_section(PanelTypeConfig{}, "a panel type",
-                                               {{"file", text_item("its MFs and templates (markcell select-mfs)"), false}}));
+      body = named_map(
+          s.doc, declared_section(PanelTypeConfig{}, "a panel type",
+                                  {{"file", text_item("its MFs and templates (markcell select-mfs)"), false},
+                                   {"recipe",
+                                    declared_section(RecipeParams{},
+                                                     "its process settings over the spray and marking sections' (each optional)"),
+                                    false}}));
     } else if (s.key == "vision") {
       body = declared_section(vision::TrackerParams{}, s.doc);
     } else if (s.key == "marking") {

@@ -63,6 +63,11 @@ ResultsFile::~ResultsFile() {
   if (fd_ >= 0) ::close(fd_);
 }
 
+void ResultsFile::reopen() {
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+}
+
 void ResultsFile::end_torn_line() {
   const off_t size = ::lseek(fd_, 0, SEEK_END);
   char last = '\n';

@@ -18,6 +18,7 @@ SystemdNotifier::SystemdNotifier(Nanos fallback_interval) : interval_(fallback_i
 
 void SystemdNotifier::ready() { sd_notify(0, "READY=1"); }
 void SystemdNotifier::stopping() { sd_notify(0, "STOPPING=1"); }
+void SystemdNotifier::reloading() { sd_notify(0, "RELOADING=1"); }
 void SystemdNotifier::status(std::string_view text) {
   const std::string msg = "STATUS=" + std::string(text);
   sd_notify(0, msg.c_str());

@@ -268,11 +268,40 @@ void ServiceLoop::start() {
                       (options_.duration > 0 ? format(" for %g s", to_seconds(options_.duration)) : std::string()));
 }
 
+void ServiceLoop::reload() {
+  cell_.notifier().reloading();
+  log(6, "markcell: SIGHUP: reloading the panel types' recipes from " + escape_log(config_.file));
+  if (results_) results_->reopen();
+  std::vector<PanelTypeConfig> types;
+  try {
+    types = reload_recipes(config_, task_catalog());
+  } catch (const ConfigInvalid& e) {
+    for (const ConfigError& error : e.errors()) log(3, "markcell: reload: " + escape_log(error.to_string()));
+    log(4, format("markcell: reload refused (%zu error(s)): the running configuration stays", e.errors().size()));
+    cell_.notifier().ready();
+    return;
+  }
+  CellConfig reloaded = config_;
+  reloaded.panel_types = std::move(types);
+  if (cell_.reload_recipes(reloaded)) {
+    std::string changed;
+    for (const PanelTypeConfig& p : reloaded.panel_types)
+      if (p.has_recipe) changed += (changed.empty() ? "" : ", ") + p.name;
+    log(6, format("markcell: reloaded the recipes of %zu panel type(s) (with a recipe: %s); panels whose record is "
+                  "taken from now on use them, other changes take a restart",
+                  reloaded.panel_types.size(), changed.empty() ? "none" : escape_log(changed).c_str()));
+  } else {
+    log(4, "markcell: reload: no marking task in the table; nothing to change");
+  }
+  cell_.notifier().ready();
+}
+
 int ServiceLoop::run(const sigset_t& signals) {
   const bool simulated = options_.clock == ClockKind::kSimulated;
   const LoopEnd end = supervise([&](Nanos timeout) {
     const timespec ts = to_timespec(timeout);
     const int sig = sigtimedwait(&signals, nullptr, &ts);
+    if (sig == SIGHUP) reload();
     return sig == SIGTERM || sig == SIGINT ? sig : 0;
   });
   std::string stop_reason = "duration elapsed";

@@ -17,6 +17,7 @@
 #include <atomic>
 #include <cstdint>
 #include <numbers>
+#include <span>
 #include <string_view>
 
 #include <Eigen/Geometry>
@@ -42,6 +43,9 @@ inline constexpr int kMaxDefects = 16;
 inline constexpr int kMaxDefectPoints = 256;
 
 // An inspection record, validated, in fixed storage (what the record reader hands over).
+// Panel types a cell knows at most (a recipe and a tracker model each).
+inline constexpr int kMaxPanelTypes = 16;
+
 struct PanelJob {
   FixedString<63> panel_id;
   FixedString<31> panel_type;
@@ -275,6 +279,13 @@ class MarkingSequence {
                   const PlcLineMap& plc, const PlcIo& plc_io, TripleBuffer<MarkingEstimate>& estimates,
                   TripleBuffer<msg::TrackerRequest>& tracker_requests);
 
+  // Each panel type's own parameters, by the index a PanelJob names it by (the
+  // configuration's panel_types order): at start-up, and again from the service's thread
+  // on a reload (wait-free). A panel runs on its type's from the moment its record is
+  // taken, on the newest set given by then: never changed mid-panel. The keys a recipe
+  // may change (the cell's kRecipeKeys) matter only within a panel. False (nothing
+  // changed) beyond kMaxPanelTypes. Allocates nothing.
+  bool set_recipes(std::span<const MarkingParams> per_panel_type);
   // From the record reader (another thread): one record waits; false when one already does.
   bool offer_job(const PanelJob& job);
   // No job waiting: the next offer_job from the same thread will be taken.
@@ -294,6 +305,8 @@ class MarkingSequence {
   bool acknowledge_result(std::uint64_t serial);
   // Read after the run (simulated cells, tests).
   const PanelResult& current() const { return result_; }
+  // The parameters the current (or last) panel runs on: its type's recipe.
+  const MarkingParams& panel_params() const { return params_; }
   std::size_t prediction_samples() const { return std::min(prediction_count_, kPredictionLog); }
   const PredictionSample& prediction_sample(std::size_t i) const { return prediction_log_[i]; }
   // The current panel's frames P (its first kPanelFrameLog), oldest first.
@@ -334,7 +347,11 @@ class MarkingSequence {
   void set_plc(int line, bool value);
   Eigen::Isometry3d nozzle_in_base(const Eigen::Isometry3d& X_CamR_P, int defect) const;
 
-  const MarkingParams params_;
+  MarkingParams params_;  // the panel's: its panel type's recipe from take_job on
+  struct RecipeTable {
+    FixedVector<MarkingParams, kMaxPanelTypes> per_type;  // empty: params_ for every panel
+  };
+  TripleBuffer<RecipeTable> recipes_{RecipeTable{}};  // written by set_recipes, read by take_job
   drivers::ArmLink& arm_;
   SprayValve& valve_;
   drivers::GpioLines& lines_;

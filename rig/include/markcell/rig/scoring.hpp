@@ -27,6 +27,7 @@ struct Spray {
   // The nozzle's pose; it sprays along its -z axis (the tool frame O_V has z out of
   // the surface, towards the cameras, so the nozzle looks back along it).
   Eigen::Isometry3d X_CamR_Nozzle = Eigen::Isometry3d::Identity();
+  Nanos open_for = -1;  // the valve's opening as the simulated world saw it; -1: unknown
 };
 
 struct TrueDefect {
@@ -48,6 +49,8 @@ struct SprayResult {
   int nearest_defect = -1;          // id, -1 when there is no defect
   double distance = 0;              // to that defect's centre (from the axis, scored on the aim), m
   bool hit = false;                 // within the radius
+  double standoff = 0;              // nozzle to the true surface along its axis, m (when on_panel)
+  Nanos open_for = -1;              // the spray's Spray::open_for
 };
 
 struct DefectResult {

@@ -45,6 +45,8 @@ drivers::CameraSettings camera_settings(const CameraConfig& cameras, const drive
 // The planner's model of the arm (limits, reach, settle, pulse, defect timeout): the
 // marking sequence's plans and `markcell capacity` use the same.
 control::ArmTimingModel arm_timing_model(const CellConfig& config);
+// ... with a panel type's recipe: its plan settle, defect timeout and pulse.
+control::ArmTimingModel arm_timing_model(const CellConfig& config, const control::ArmTimingModel& marking, Nanos pulse);
 // A real transport's link (can, serial); `bus` receives the SocketCAN bus a CAN link
 // runs on. Throws std::logic_error for the simulated transport (the cell's own world).
 std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::unique_ptr<drivers::SocketCanBus>& bus);
@@ -126,6 +128,14 @@ class Cell {
   sim::CommandLogText command_log_text() const;
   // The marking sequence and the vision task (null when not in the task table).
   control::MarkingSequence* marking() { return marking_.get(); }
+  // Each panel type's marking parameters: `config`'s marking section with the type's
+  // recipe over it, completed as the cell completes its own (X_Base_CamR, the arm's
+  // timing, the result acknowledgement).
+  std::vector<control::MarkingParams> recipes(const CellConfig& config) const;
+  // On a reload (the service's thread): `config`'s panel types' recipes, for panels whose
+  // record is taken from now on (the same panel types, in the same order, as the
+  // running configuration's). False: no marking task, or too many panel types.
+  bool reload_recipes(const CellConfig& config);
   vision::FrameSource* frame_source() { return frame_source_.get(); }
   const VisionStats* vision_stats() const { return vision_ ? &vision_->stats : nullptr; }
   const vision::StereoRig* stereo_rig() const { return rig_.get(); }

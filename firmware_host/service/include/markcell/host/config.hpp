@@ -10,6 +10,7 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "markcell/common/param.hpp"
@@ -257,11 +258,52 @@ struct SafeStopConfig {
   }
 };
 
+// `panel_types.NAME.recipe`: the process settings that belong to a panel type rather
+// than to the cell (its paint and surface: the pulse and the stand-off; how exactly it
+// must be hit: the settle tolerances; how surely its defects must be placed), each
+// defaulting to the `spray:` or `marking:` section's value. Declared where they are
+// (SprayConfig::Visit, control::MarkingParams::Visit), optional here: these keys of
+// theirs, with their units, ranges and texts.
+inline constexpr std::array<std::string_view, 8> kRecipeKeys{
+    "pulse_ms", "standoff_m", "settle_mm", "settle_deg", "settle_ms", "defect_timeout_s", "placement_limit_mm", "placement_hold_s"};
+
+// A visitor passing on only kRecipeKeys' parameters, each optional.
+template <class V>
+struct RecipeKeysOnly {
+  V& visitor;
+  template <class T>
+  void operator()(const Param& p, T&& field) {
+    for (const std::string_view key : kRecipeKeys)
+      if (key == p.key) {
+        Param optional = p;
+        optional.required = false;
+        visitor(optional, std::forward<T>(field));
+        return;
+      }
+  }
+};
+
+struct RecipeParams {
+  SprayConfig spray;               // its pulse
+  control::MarkingParams marking;  // the rest
+
+  template <class V>
+  void Visit(V& v) {
+    RecipeKeysOnly<V> only{v};
+    spray.Visit(only);
+    marking.Visit(only);
+  }
+};
+
 // `panel_types.NAME`; its `file` is read by hand (a file that must exist, and parse).
 struct PanelTypeConfig {
   std::string name;
   int macro_features = 10;
   std::string file;  // the panel type's MFs and templates (markcell select-mfs); absolute
+  // Its process settings: `marking:` and `spray:`'s, with its `recipe` over them.
+  control::MarkingParams marking;
+  Nanos pulse = 0;
+  bool has_recipe = false;
 
   template <class V>
   void Visit(V& v) {
@@ -383,6 +425,12 @@ CellConfig load_config(const std::string& path, TaskTable known_tasks);
 // The same from text already in memory; `path` names it in messages and is where
 // relative calibration paths are resolved from.
 CellConfig load_config_text(const std::string& text, const std::string& path, TaskTable known_tasks);
+// `systemctl reload markcell` (SIGHUP): the running configuration's panel types with the
+// recipes its file gives them now, over the running `spray` and `marking` sections.
+// Throws ConfigInvalid with every error (FILE:LINE:COL) when the file is not a valid
+// configuration now, or when its panel types (names, order, files, macro_features)
+// differ from the running ones: those, and every other section, take a restart.
+std::vector<PanelTypeConfig> reload_recipes(const CellConfig& running, TaskTable known_tasks);
 std::vector<ConfigError> check_config_text(const std::string& text, const std::string& path,
                                            TaskTable known_tasks);
 // Same checks, returning the errors instead of throwing (empty: valid).

@@ -30,6 +30,9 @@ class ResultsFile {
   // Appends and syncs one line; throws naming the path when the disk refuses (the file is
   // then as it was before) or the file is gone.
   void append(const std::string& line);
+  // Closes the file; the next append opens the path anew (SIGHUP, after a rotation that
+  // the inode check in append would find anyway).
+  void reopen();
   const std::string& path() const { return path_; }
 
   static std::string to_json(const control::PanelResult& result, const std::string& cell);

@@ -20,6 +20,7 @@ class SystemdNotifier final : public control::WatchdogSink {
 
   void ready();
   void stopping();
+  void reloading();  // RELOADING=1: READY=1 follows when the reload is done (or refused)
   void status(std::string_view text);
 
   std::string_view name() const override { return "systemd"; }

@@ -79,8 +79,9 @@ class ServiceLoop {
   // Starts the cell's lanes: throws what failed (nothing has moved then).
   void start();
   // Runs until the end, shuts the cell down and prints its timing report and faults;
-  // returns the exit code. `signals`: blocked in every thread (main()'s first line),
-  // taken here with sigtimedwait.
+  // returns the exit code. `signals`: blocked in every thread (main()'s first line; run
+  // adds SIGHUP before the cell's threads exist), taken here with sigtimedwait: SIGTERM
+  // and SIGINT stop, SIGHUP reloads.
   int run(const sigset_t& signals);
   // The loop alone, for the rig: time driven (the simulated clock run, or the real one
   // waited on) in steps of at most `options.step`, cut at each scripted PLC event so that
@@ -103,6 +104,11 @@ class ServiceLoop {
   void log_faults();
   void take_records(Nanos now);
   void apply_plc_events(Nanos elapsed);
+  // SIGHUP (systemctl reload): the panel types' recipes from the configuration file as it
+  // is now, for the panels whose record is taken from now on, and the results file
+  // reopened. A file that is not valid now, or whose panel types changed, changes
+  // nothing: each error logged, the running configuration kept.
+  void reload();
   void log(int priority, std::string_view text, std::initializer_list<JournalField> fields = {}) const;
   // True: a fault of the cell itself; the process must end.
   bool watch_safety();

@@ -16,6 +16,7 @@ namespace markcell::sim {
 struct SimSpray {
   Nanos time = 0;
   drivers::ToolPose tool;  // X_Base_Tool as the arm's mechanics had it, not as reported
+  Nanos open_for = -1;     // how long the valve stayed open; -1 while it still is
 };
 
 // The simulated world's view of the nozzle, one tick at a time: each opening of the valve
@@ -27,7 +28,11 @@ class NozzleWitness {
  public:
   static constexpr std::size_t kCapacity = 256;
   void observe(Nanos now, bool valve_open, const drivers::ToolPose& tool, CommandLog& log) noexcept {
-    if (valve_open && !was_open_) sprays_[total_++ % kCapacity] = SimSpray{now, tool};
+    if (valve_open && !was_open_) sprays_[total_++ % kCapacity] = SimSpray{now, tool, -1};
+    if (!valve_open && was_open_ && total_ > 0) {
+      SimSpray& last = sprays_[(total_ - 1) % kCapacity];
+      last.open_for = now - last.time;
+    }
     if (valve_open != was_open_) log.valve(now, valve_open);
     was_open_ = valve_open;
   }

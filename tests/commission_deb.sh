@@ -128,6 +128,26 @@ check grep -q "rotation test" /var/lib/markcell/results.jsonl.1
 check test "$(stat -c '%U:%G %a' /var/lib/markcell/results.jsonl)" = "markcell:markcell 640"
 check test ! -s /var/lib/markcell/results.jsonl
 
+# The commissioning checklist's last step on this root, with the rig standing in for the
+# line: a recording and its inspection record made by the installed `markcell sim`, the
+# installed cell.yaml pointed at the recording as its cameras (as an integrator edits
+# it), the record dropped into the record folder, and `run` as the unit runs it with a
+# PLC script: the panel marked, its result in the results file.
+(as_service markcell sim paper-door --seconds 3 --fps 10 --one-predictor -q --out /var/lib/markcell/commissioning) >/dev/null
+sed -i 's|^    source: simulated |    source: recording |; s|^    # recording: /path/to/recording|    recording: /var/lib/markcell/commissioning/recording|' \
+  /etc/markcell/cell.yaml
+check grep -q '^    recording: /var/lib/markcell/commissioning/recording' /etc/markcell/cell.yaml
+(as_service cp /var/lib/markcell/commissioning/recording/inspection.yaml /var/lib/markcell/records/0001.yaml)
+printf '0.0 plc_panel_present 1\n3.2 plc_panel_present 0\n' >"$work/plc.txt"
+chmod 0644 "$work/plc.txt"
+chmod 0755 "$work"
+(as_service markcell run --config /etc/markcell/cell.yaml --clock sim --seconds 6 --plc-script "$work/plc.txt") >"$work/marked.log" 2>&1 ||
+  { cat "$work/marked.log"; echo "FAILED: run with the recording"; exit 1; }
+check grep -q '<6>markcell: panel=paper-door-1 result=done sprayed=3 skipped=0' "$work/marked.log"
+check grep -q '"panel":1,"panel_id":"paper-door-1","started_s"' /var/lib/markcell/results.jsonl
+check test -f /var/lib/markcell/records/accepted/0001.yaml
+grep 'result=' "$work/marked.log"
+
 # A calibration replaced as the service user (calibrate-base on the simulated arm): the
 # seed kept in history/, both listed by `markcell calibrations`, named by check-config.
 check test "$( (as_service markcell calibrate-base --out /var/lib/markcell/calibration/base.yaml) | tail -1)" = \
@@ -171,7 +191,7 @@ check test ! -e /etc/markcell/cell.yaml
 check test -d /var/lib/markcell
 check test -f /var/lib/markcell/calibration/base.yaml
 check test -f "$kept"
-echo "commissioned: dpkg -i, the user, groups and state folder, check-config and a run as the unit runs them, remove and purge"
+echo "commissioned: dpkg -i, the user, groups and state folder, check-config and a run as the unit runs them, a panel marked, remove and purge"
 INSIDE
 mkdir -p "$work/layer"
 unshare --mount --propagation private bash "$work/inside.sh" "$work" "$deb" "$window_deb"

@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
+#include <optional>
 #include <ostream>
 #include <sys/stat.h>
 
@@ -50,31 +51,47 @@ std::string modified_utc(const std::string& path) {
 
 }  // namespace
 
-std::string calibration_summary(const std::string& path) {
-  std::optional<vision::CalibrationProvenance> p;
+namespace {
+
+// The file's provenance read once, and the summary line of what was read (`why`: the
+// reason it could not be read, else empty).
+struct Read {
+  std::optional<vision::CalibrationProvenance> provenance;
+  std::string why;
+};
+Read read_provenance(const std::string& path) {
+  Read r;
   try {
-    p = vision::load_provenance(path);
+    r.provenance = vision::load_provenance(path);
   } catch (const std::exception& e) {
-    return std::string("cannot be read: ") + escape_log(e.what());
+    r.why = e.what();
   }
-  if (!p) return "no provenance (not written by markcell's calibrate tools), modified " + modified_utc(path);
-  std::string s = "calibrated " + escape_log(p->calibrated_utc) + " by " + escape_log(p->tool) + ", RMS " +
-                  number(p->rms, "%.3f") + " " + p->rms_unit;
-  if (!p->views.empty()) s += " over " + std::to_string(p->views.size()) + (p->rms_unit == "mm" ? " arm poses" : " views");
+  return r;
+}
+
+std::string summary(const std::string& path, const Read& r) {
+  if (!r.why.empty()) return "cannot be read: " + escape_log(r.why);
+  if (!r.provenance) return "no provenance (not written by markcell's calibrate tools), modified " + modified_utc(path);
+  const vision::CalibrationProvenance& p = *r.provenance;
+  std::string s = "calibrated " + escape_log(p.calibrated_utc) + " by " + escape_log(p.tool) + ", RMS " +
+                  number(p.rms, "%.3f") + " " + p.rms_unit;
+  if (!p.views.empty()) s += " over " + std::to_string(p.views.size()) + (p.rms_unit == "mm" ? " arm poses" : " views");
   const auto camera = [](const std::string& id) { return id.empty() ? std::string("not given") : escape_log(id); };
-  s += ", cameras " + camera(p->left_camera) + " and " + camera(p->right_camera);
+  s += ", cameras " + camera(p.left_camera) + " and " + camera(p.right_camera);
   return s;
 }
 
+}  // namespace
+
+std::string calibration_summary(const std::string& path) { return summary(path, read_provenance(path)); }
+
 std::string calibration_listing(const std::string& role, const std::string& path) {
-  std::string out = role + ": " + path + " (in use)\n  " + calibration_summary(path) + "\n";
-  try {
-    if (const auto p = vision::load_provenance(path)) {
-      for (const auto& v : p->views) out += "    " + escape_log(v.name) + "  RMS " + number(v.rms, "%.3f") + " " + p->rms_unit + "\n";
-    }
-  } catch (const std::exception&) {
-    // Said in the summary above.
-  }
+  // One read for the summary and the views: a file replaced in between cannot mix them.
+  const Read in_use = read_provenance(path);
+  std::string out = role + ": " + path + " (in use)\n  " + summary(path, in_use) + "\n";
+  if (in_use.provenance)
+    for (const auto& v : in_use.provenance->views)
+      out += "    " + escape_log(v.name) + "  RMS " + number(v.rms, "%.3f") + " " + in_use.provenance->rms_unit + "\n";
   const auto history = file_history(path);
   if (history.empty()) {
     out += "  no earlier versions in " + history_folder(path).string() + "\n";

@@ -84,6 +84,30 @@ Eigen::Isometry3d MarkingSequence::nozzle_in_base(const Eigen::Isometry3d& X_Cam
 }
 
 TaskResult MarkingSequence::step(const TaskContext& ctx) noexcept {
+  const TaskResult r = advance(ctx);
+  publish_progress();
+  return r;
+}
+
+// A copy of under 1 KiB per step: what the operator page needs, never the sequence itself.
+void MarkingSequence::publish_progress() noexcept {
+  MarkingProgress& p = progress_.write_slot();
+  p.state = state_;
+  p.on_panel = state_ != MarkingState::kIdle && state_ != MarkingState::kWaitRelease && result_.serial != 0;
+  p.panel_serial = result_.serial;
+  p.panel_id = result_.panel_id;
+  p.panel_type = job_.panel_type;
+  p.current = state_ == MarkingState::kApproach || state_ == MarkingState::kSpraying ? defect_ : -1;
+  p.reference_serial = intercal_serial_;
+  p.defects.clear();
+  for (std::size_t k = 0; k < result_.defects.size(); ++k) {
+    const DefectResult& d = result_.defects[k];
+    p.defects.push_back(DefectProgress{d.id, d.sprayed, d.skipped, intercal_serial_ != 0 && tools_[k].ok(), tools_[k].centre});
+  }
+  progress_.publish();
+}
+
+TaskResult MarkingSequence::advance(const TaskContext& ctx) noexcept {
   const Nanos now = ctx.now();
   if (estimates_.update()) on_estimate(estimates_.read().pose, estimates_.read().fits, now);
   if (ctx.safe_stopped() && state_ != MarkingState::kReporting) {

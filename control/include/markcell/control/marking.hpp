@@ -267,6 +267,28 @@ struct MarkingEstimate {
   PoseFits fits;
 };
 
+// The panel under way, as the operator page shows it (host/operator_page.hpp): what the
+// marking task is doing and each defect's state, published at the end of every step
+// (wait-free; one reader, the service's thread). A defect's centre is in the tracker's P
+// `reference_serial` names: the page draws it on the live view's pose of that P.
+struct DefectProgress {
+  int id = 0;
+  bool sprayed = false;
+  SkipReason skipped = SkipReason::kNone;
+  bool placed = false;  // its centre in P is known (the inter-calibration placed it)
+  Eigen::Vector3d centre_P = Eigen::Vector3d::Zero();
+};
+struct MarkingProgress {
+  MarkingState state = MarkingState::kIdle;
+  bool on_panel = false;            // a panel is under way (false: the last one's, if any)
+  std::uint64_t panel_serial = 0;   // its PanelResult::serial (0: no panel yet)
+  FixedString<63> panel_id;
+  FixedString<31> panel_type;
+  int current = -1;                 // the defect being marked (index), -1: none
+  std::uint32_t reference_serial = 0;  // the P the centres are in (0: not placed yet)
+  FixedVector<DefectProgress, kMaxDefects> defects;
+};
+
 // On the vision lane, with each pose of a panel whose record is known: bounded, no allocation.
 void fit_pose_to_record(const msg::TrackerRequest& job, const msg::PoseEstimate& e, const IntercalibrationLimits& limits,
                         PoseFits& out) noexcept;
@@ -297,6 +319,8 @@ class MarkingSequence {
   // Completed panels, newest last (wait-free for a reader on another lane).
   TripleBuffer<PanelResult>& results() { return results_; }
   std::uint64_t panels_completed() const { return completed_.load(std::memory_order_acquire); }
+  // The panel under way, after every step (one reader: the service's thread).
+  TripleBuffer<MarkingProgress>& progress() { return progress_; }
   // From the results writer (another thread), once result `serial` is on disk and synced.
   // True: the PLC hears the result as written. False: the sequence had given up waiting
   // (result_ack_timeout) and told the PLC fault first; the writer then appends that
@@ -314,6 +338,8 @@ class MarkingSequence {
   const PanelFrameRecord& panel_frame(std::size_t i) const { return panel_frame_log_[i]; }
 
  private:
+  TaskResult advance(const TaskContext& ctx) noexcept;
+  void publish_progress() noexcept;
   void on_estimate(const msg::PoseEstimate& e, const PoseFits& fits, Nanos now);
   void start_panel(Nanos now);
   // False: no usable P (the panel failed, or a new search was asked for). `now`: the
@@ -367,6 +393,7 @@ class MarkingSequence {
   MarkingState state_ = MarkingState::kIdle;
   PanelResult result_;
   TripleBuffer<PanelResult> results_;
+  TripleBuffer<MarkingProgress> progress_;
   std::atomic<std::uint64_t> completed_{0};
   // The latest result's fate: 2 * serial once written in time, 2 * serial + 1 once the
   // sequence gave up waiting for it (set by compare-and-swap from either side).

@@ -195,9 +195,9 @@ Json run_json(const PredictorRun& r) {
       {"episodes", r.episodes},
       {"panels", panels_json(r)},
       {"vision",
-       {{"frames", r.vision.frames},
-        {"dropped", r.vision.dropped},
-        {"poses", r.vision.poses},
+       {{"frames", r.vision.frames.load()},
+        {"dropped", r.vision.dropped.load()},
+        {"poses", r.vision.poses.load()},
         {"skipped", r.frames_skipped},
         {"arm_drawn", r.arm.drawn},
         {"arm_hid_pairs", r.arm.hid_pairs},
@@ -499,7 +499,7 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
     return r.pose_samples > 0 ? fixed(r.defect_error_max * 1000, 1) + " / " + fixed(r.defect_error_rms * 1000, 1) : std::string("-");
   }, "-");
   row("frames / poses / dropped", [](const PredictorRun& r) {
-    return std::to_string(r.vision.frames) + "/" + std::to_string(r.vision.poses) + "/" + std::to_string(r.vision.dropped);
+    return std::to_string(r.vision.frames.load()) + "/" + std::to_string(r.vision.poses.load()) + "/" + std::to_string(r.vision.dropped.load());
   }, "0.5 Hz");
   row("deadline misses", [](const PredictorRun& r) { return std::to_string(r.deadline_misses); }, "-");
   for (const auto& r : report.runs)

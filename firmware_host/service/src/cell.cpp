@@ -187,6 +187,7 @@ control::TaskResult Cell::VisionTask::task(control::TaskContext& ctx, void* self
   const msg::PoseEstimate& e = v->trackers[static_cast<std::size_t>(v->active)]->process(f.seq, f.time, *f.left, *f.right);
   if (e.has_pose()) ++v->stats.poses;
   if (v->poses != nullptr) v->poses->push(e);  // a full queue counts the estimate, never waits
+  if (v->live != nullptr) v->live->offer(f.seq, f.time, *f.left, *f.right, e);  // only when the page asked
   v->source->tracked(e);
   control::MarkingEstimate& out = v->estimates->write_slot();
   out.pose = e;
@@ -377,6 +378,13 @@ void Cell::enable_pose_queue() {
   if (!vision_ || started_) throw std::logic_error("the pose queue needs the vision task and must be enabled before start()");
   if (!pose_queue_) pose_queue_ = std::make_unique<PoseQueue>();
   vision_->poses = pose_queue_.get();
+}
+
+void Cell::enable_live_view() {
+  if (live_view_) return;
+  if (!vision_ || started_) throw std::logic_error("the live view needs the vision task and must be enabled before start()");
+  live_view_ = std::make_unique<LiveViewChannel>();
+  vision_->live = live_view_.get();
 }
 
 std::unique_ptr<vision::FrameSource> Cell::release_frame_source() {

@@ -3,6 +3,7 @@
 // executive with every configured task bound to the code that provides it.
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <memory>
 #include <optional>
 #include <string>
@@ -24,6 +25,7 @@
 #include "markcell/sim/command_log.hpp"
 #include "markcell/sim/nozzle_witness.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/host/live_view.hpp"
 #include "markcell/host/sd_notify.hpp"
 #include "markcell/vision/frame_source.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -53,11 +55,22 @@ std::unique_ptr<drivers::ArmLink> make_arm_link(const ArmConfig& arm, std::uniqu
 
 // The vision task: frames from the source, the tracker of the panel type the marking
 // sequence asked for, poses out to the control lane.
+// Counted by the vision lane, read live by the operator page's thread (relaxed: a reading
+// may be a frame behind); a copy is a reading.
 struct VisionStats {
-  std::uint64_t frames = 0;
-  std::uint64_t dropped = 0;   // pairs the source could not deliver (each reported)
-  std::uint64_t poses = 0;
-  std::uint64_t stalls = 0;
+  std::atomic<std::uint64_t> frames{0};
+  std::atomic<std::uint64_t> dropped{0};   // pairs the source could not deliver (each reported)
+  std::atomic<std::uint64_t> poses{0};
+  std::atomic<std::uint64_t> stalls{0};
+  VisionStats() = default;
+  VisionStats(const VisionStats& o) { *this = o; }
+  VisionStats& operator=(const VisionStats& o) {
+    frames.store(o.frames.load(std::memory_order_relaxed), std::memory_order_relaxed);
+    dropped.store(o.dropped.load(std::memory_order_relaxed), std::memory_order_relaxed);
+    poses.store(o.poses.load(std::memory_order_relaxed), std::memory_order_relaxed);
+    stalls.store(o.stalls.load(std::memory_order_relaxed), std::memory_order_relaxed);
+    return *this;
+  }
 };
 
 // The vision task's estimates on their way to the pose log (host/pose_log.hpp): 256 pairs,
@@ -115,6 +128,10 @@ class Cell {
   // start() (again later: nothing to do); null until then, or without a vision task.
   void enable_pose_queue();
   PoseQueue* pose_queue() { return pose_queue_.get(); }
+  // The operator page's live view (host/live_view.hpp), taken here before start() (again
+  // later: nothing to do); null until then, or without a vision task.
+  void enable_live_view();
+  LiveViewChannel* live_view() { return live_view_.get(); }
   // Replaces the configured frame source (before start()): tests, benchmarks, and the
   // rig, which puts its own in front of the configured one (rig/arm_view.hpp).
   void use_frame_source(std::unique_ptr<vision::FrameSource> source);
@@ -170,6 +187,7 @@ class Cell {
     TripleBuffer<msg::TrackerRequest>* requests = nullptr;
     control::FaultLog* faults = nullptr;
     PoseQueue* poses = nullptr;  // every estimate, for the pose log (null: none kept)
+    LiveViewChannel* live = nullptr;  // the operator page's view (null: none)
     // The panel's record (from the last request) and the limits its fits are made with.
     msg::TrackerRequest job;
     control::IntercalibrationLimits limits;
@@ -194,6 +212,7 @@ class Cell {
   std::unique_ptr<TripleBuffer<msg::TrackerRequest>> tracker_requests_;
   std::unique_ptr<VisionTask> vision_;
   std::unique_ptr<PoseQueue> pose_queue_;
+  std::unique_ptr<LiveViewChannel> live_view_;
   std::unique_ptr<control::MarkingSequence> marking_;
   std::unique_ptr<SimWorld> sim_world_;
   std::unique_ptr<drivers::SocketCanBus> can_bus_;

@@ -487,6 +487,22 @@ TEST_CASE_METHOD(Fixture, "the record folder: resolved against the config's fold
   CHECK(m[0].find("cell.record_folder: folder '" + (dir.path() / "nowhere").string() + "' does not exist") != std::string::npos);
 }
 
+TEST_CASE_METHOD(Fixture, "the operator page: off unless given, ADDRESS:PORT, each error at its key") {
+  CHECK(load_config_text(kValid, file(), task_catalog()).operator_page.empty());
+  const auto ok = load_config_text(replace(kValid, "name: test-cell", "name: test-cell\n  operator_page: 127.0.0.1:8089"), file(),
+                                   task_catalog());
+  CHECK(ok.operator_page == "127.0.0.1:8089");
+  auto m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  operator_page: localhost:8089")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":3:18: cell.operator_page: 'localhost' is not an IPv4 address (e.g. 127.0.0.1, or 0.0.0.0 for every interface)");
+  m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  operator_page: 0.0.0.0:80800")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == file() + ":3:18: cell.operator_page: port '80800' is not a number from 1 to 65535");
+  m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  operator_page: [8089]")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0].rfind(file() + ":3:18: cell.operator_page: expected ", 0) == 0);
+}
+
 TEST_CASE_METHOD(Fixture, "the pose log: its folder resolved and required to exist, its rotation size in range") {
   std::filesystem::create_directories(dir.path() / "poses");
   const auto ok = load_config_text(

@@ -67,6 +67,7 @@ int run_command(const std::string& file, const std::string& clock_name, double s
     options.plc_events = std::move(plc_events);
     options.pose_log_folder = config.pose_log_folder;
     options.pose_log_rotate_bytes = config.pose_log_rotate_mb * 1024 * 1024;
+    options.operator_page = true;
     service = std::make_unique<ServiceLoop>(config, cell, std::move(options));
     service->start();
   } catch (const std::exception& e) {

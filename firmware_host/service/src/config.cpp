@@ -14,6 +14,7 @@
 
 #include "markcell/common/bounded_file.hpp"
 #include "markcell/common/param.hpp"
+#include "markcell/host/operator_page.hpp"
 
 #include "markcell/vision/calibration_io.hpp"
 #include "markcell/vision/panel_tracker.hpp"
@@ -806,7 +807,7 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
     return r.child(root, "", std::string(key), s != kConfigSections.end() && s->required);
   };
 
-  if (const auto cell = section("cell"); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder", "pose_log_folder", "pose_log_rotate_mb"})) {
+  if (const auto cell = section("cell"); cell && r.map(*cell, "cell", {"name", "results_file", "record_folder", "pose_log_folder", "pose_log_rotate_mb", "operator_page"})) {
     r.text(*cell, "cell", "name", cfg.name);
     // A path resolved against the config file's folder; `folder` must exist.
     const auto path_in = [&](const char* key, std::string& out, const auto& folder_of) {
@@ -826,6 +827,13 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
     path_in("record_folder", cfg.record_folder, [](const std::filesystem::path& p) { return p; });
     path_in("pose_log_folder", cfg.pose_log_folder, [](const std::filesystem::path& p) { return p; });
     r.integer(*cell, "cell", "pose_log_rotate_mb", cfg.pose_log_rotate_mb, 1, 1 << 20, false);
+    std::string listen;
+    r.text(*cell, "cell", "operator_page", listen, false, 64);
+    std::string address, error;
+    int port = 0;
+    if (!listen.empty() && !parse_listen_address(listen, address, port, error))
+      r.error((*cell)["operator_page"], "cell.operator_page", error);
+    else cfg.operator_page = listen;
   }
   std::vector<YAML::Mark> task_marks;
   if (const auto e = section("executive")) read_executive(r, *e, known_tasks, cfg, task_marks);

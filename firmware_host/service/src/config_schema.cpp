@@ -193,6 +193,7 @@ std::string config_schema_json(TaskTable known_tasks) {
       cell.add_object("record_folder", text_item("inspection records arrive here"), false);
       cell.add_object("pose_log_folder", text_item("poses.csv and mf_tracks.csv written here"), false);
       cell.add_object("pose_log_rotate_mb", integer_item("each pose log file rotated to FILE.1 past this size, MiB", 1, 1 << 20), false);
+      cell.add_object("operator_page", text_item("ADDRESS:PORT the operator page and /metrics listen on (e.g. 127.0.0.1:8089); absent: off"), false);
       body = cell.object(s.doc);
     } else if (s.key == "executive") {
       body = executive_section(s.doc, known_tasks);

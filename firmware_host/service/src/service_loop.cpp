@@ -56,6 +56,10 @@ ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions op
     pose_log_ = std::make_unique<PoseLog>(options_.pose_log_folder, options_.pose_log_mode, options_.pose_log_rotate_bytes);
     cell.enable_pose_queue();  // (before start(), or already by whoever started the cell)
   }
+  if (options_.operator_page && !config.operator_page.empty()) {
+    if (cell.vision_stats() != nullptr) cell.enable_live_view();
+    page_ = std::make_unique<OperatorPage>(config.operator_page, config.name, cell);  // bound now: a taken port stops the start
+  }
 }
 
 ServiceLoop::~ServiceLoop() {
@@ -101,8 +105,23 @@ void ServiceLoop::collect() {
                    {{"PANEL_ID", r.panel_id.view()}});
     }
   }
-  const auto [sprayed, skipped] = r.tally();
+  // (not a structured binding: clang 14 cannot capture one in the page's lambda)
+  const control::PanelResult::Tally tally = r.tally();
+  const int sprayed = tally.sprayed, skipped = tally.skipped;
   const bool fault = r.fault || late;
+  if (page_) {
+    std::string line = ResultsFile::to_json(r, config_.name);
+    while (!line.empty() && line.back() == '\n') line.pop_back();
+    if (late) line = ResultsFile::late_json(config_.name, r.serial, std::string(r.panel_id.view()));
+    while (!line.empty() && line.back() == '\n') line.pop_back();
+    page_->update([&](OperatorState& s) {
+      s.results.push_back(std::move(line));
+      if (s.results.size() > OperatorState::kKeptResults) s.results.pop_front();
+      ++(fault ? s.panels_fault : s.panels_done);
+      s.defects_sprayed += static_cast<std::uint64_t>(sprayed);
+      s.defects_skipped += static_cast<std::uint64_t>(skipped);
+    });
+  }
   const std::string_view reason = late ? std::string_view("results file not written in time") : r.reason.view();
   const std::string sprayed_text = std::to_string(sprayed), skipped_text = std::to_string(skipped);
   log(fault ? 3 : 6,
@@ -120,6 +139,12 @@ void ServiceLoop::collect() {
 void ServiceLoop::log_faults() {
   control::Fault f;
   while (cell_.faults().pop(f)) {
+    if (page_)
+      page_->update([&](OperatorState& s) {
+        s.faults.push_back({to_seconds(f.time), std::string(control::to_string(f.code)), f.source.c_str(), f.detail.c_str()});
+        if (s.faults.size() > OperatorState::kKeptFaults) s.faults.pop_front();
+        ++s.faults_total;
+      });
     if (options_.on_fault) {
       options_.on_fault(f);
       continue;
@@ -152,6 +177,7 @@ void ServiceLoop::take_records(Nanos now) {
     return;
   }
   for (const RecordEvent& ev : events) {
+    if (page_) page_->update([&](OperatorState& s) { ++(ev.kind == RecordEvent::Kind::kAccepted ? s.records_accepted : s.records_rejected); });
     if (ev.kind == RecordEvent::Kind::kAccepted) {
       log(6, format("markcell: record panel=%s accepted (%s)", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str()),
                    {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}});
@@ -215,6 +241,29 @@ bool ServiceLoop::watch_safety() {
   return stop.done() && stop.internal_fault();
 }
 
+void ServiceLoop::refresh_page() {
+  if (!page_) return;
+  control::SafeStop& stop = cell_.safe_stop();
+  control::MarkingSequence* m = cell_.marking();
+  if (m != nullptr) m->progress().update();  // (this thread is its one reader)
+  page_->update([&](OperatorState& s) {
+    s.status = status_shown_;
+    s.safe_stop = stop.done();
+    if (s.safe_stop) {
+      const control::Fault& why = stop.reason();
+      s.stop_code = control::to_string(why.code);
+      s.stop_source = why.source.c_str();
+      s.stop_detail = why.detail.c_str();
+    } else {
+      s.stop_code.clear();
+      s.stop_source.clear();
+      s.stop_detail.clear();
+    }
+    s.has_marking = m != nullptr;
+    if (m != nullptr) s.progress = m->progress().read();
+  });
+}
+
 LoopEnd ServiceLoop::supervise(const StopWait& wait) {
   const LoopEnd end = supervise_steps(wait);
   write_poses();
@@ -252,7 +301,9 @@ LoopEnd ServiceLoop::supervise_steps(const StopWait& wait) {
     take_records(now());
     write_poses();
     if (options_.on_step) options_.on_step(t);
-    if (watch_safety()) return LoopEnd::kCellFault;
+    const bool cell_fault = watch_safety();
+    refresh_page();
+    if (cell_fault) return LoopEnd::kCellFault;
     if (options_.panels > 0 && cell_.marking() != nullptr && cell_.marking()->panels_completed() >= options_.panels)
       return LoopEnd::kPanels;
     if (t >= duration) return LoopEnd::kDuration;
@@ -263,6 +314,11 @@ void ServiceLoop::start() {
   const bool simulated = options_.clock == ClockKind::kSimulated;
   cell_.start();
   for (const auto& w : cell_.privilege_warnings()) log(4, "markcell: warning: " + escape_log(w));
+  if (page_) {
+    page_->start();
+    log(6, format("markcell: operator page on http://%s:%d/ (read-only; Prometheus metrics at /metrics)",
+                  page_->address().c_str(), page_->port()));
+  }
   log(6, format("markcell: cell '%s' running on the %s clock", escape_log(config_.name).c_str(),
                          simulated ? "simulated" : "real") +
                       (options_.duration > 0 ? format(" for %g s", to_seconds(options_.duration)) : std::string()));

@@ -348,6 +348,7 @@ struct CellConfig {
   std::string record_folder;  // inspection records arrive here (empty: none); absolute
   std::string pose_log_folder;  // poses.csv and mf_tracks.csv written here (empty: none); absolute
   std::uint64_t pose_log_rotate_mb = 64;  // each file rotated to FILE.1 past this size
+  std::string operator_page;  // ADDRESS:PORT the operator page and /metrics listen on (empty: off)
   control::ExecutiveSpec executive;
   WatchdogConfig watchdog;
   SafeStopConfig safe_stop;

@@ -25,6 +25,7 @@
 #include "markcell/host/config.hpp"
 #include "markcell/host/exit_codes.hpp"
 #include "markcell/host/journal.hpp"
+#include "markcell/host/operator_page.hpp"
 #include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
@@ -52,6 +53,9 @@ struct ServiceOptions {
   std::string pose_log_folder;
   PoseLog::Mode pose_log_mode = PoseLog::Mode::kAppend;
   std::uint64_t pose_log_rotate_bytes = 0;
+  // Serve the operator page on the configuration's cell.operator_page (`run`; never the
+  // rig's replay, whose configuration may name one for the cell it came from).
+  bool operator_page = false;
 };
 
 // Why the loop ended.
@@ -97,6 +101,7 @@ class ServiceLoop {
   // ones after the cell stops, and the destructor).
   void write_poses();
   const PoseLog* pose_log() const { return pose_log_.get(); }
+  OperatorPage* operator_page() { return page_.get(); }
   Nanos elapsed() const;                  // since the loop's start
 
  private:
@@ -112,6 +117,8 @@ class ServiceLoop {
   void log(int priority, std::string_view text, std::initializer_list<JournalField> fields = {}) const;
   // True: a fault of the cell itself; the process must end.
   bool watch_safety();
+  // The operator page's view of what this thread knows (after each step).
+  void refresh_page();
   Nanos now() const;  // the cell's clock: simulated or monotonic
 
   const CellConfig& config_;
@@ -121,6 +128,7 @@ class ServiceLoop {
   std::unique_ptr<ResultsFile> results_;
   std::unique_ptr<RecordFolder> records_;
   std::unique_ptr<PoseLog> pose_log_;
+  std::unique_ptr<OperatorPage> page_;
   std::uint64_t poses_dropped_seen_ = 0, poses_failed_seen_ = 0;
   sim::PlcScript script_;
   std::uint64_t written_ = 0;

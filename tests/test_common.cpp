@@ -283,6 +283,44 @@ TEST_CASE("UTC times: ISO 8601 and the file-name form, against known dates") {
   CHECK(markcell::utc_compact(951782400) == "20000229T000000Z");  // a leap day
 }
 
+TEST_CASE("UTC to the millisecond: against Hinnant's civil-from-days over 2000 random instants, rounded down") {
+  // The reference: Howard Hinnant's civil_from_days (chrono's own algorithm), written
+  // out here, not gmtime as the code under test uses.
+  const auto reference = [](std::int64_t ns) {
+    std::int64_t s = ns / 1'000'000'000, r = ns % 1'000'000'000;
+    if (r < 0) {
+      --s;
+      r += 1'000'000'000;
+    }
+    std::int64_t days = s / 86400, sec = s % 86400;
+    if (sec < 0) {
+      --days;
+      sec += 86400;
+    }
+    const std::int64_t z = days + 719468, era = (z >= 0 ? z : z - 146096) / 146097, doe = z - era * 146097;
+    const std::int64_t yoe = (doe - doe / 1460 + doe / 36524 - doe / 146096) / 365, doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    const std::int64_t mp = (5 * doy + 2) / 153, d = doy - (153 * mp + 2) / 5 + 1, m = mp < 10 ? mp + 3 : mp - 9;
+    const std::int64_t y = yoe + era * 400 + (m <= 2 ? 1 : 0);
+    char text[40];
+    std::snprintf(text, sizeof text, "%04lld-%02lld-%02lldT%02lld:%02lld:%02lld.%03lldZ", static_cast<long long>(y),
+                  static_cast<long long>(m), static_cast<long long>(d), static_cast<long long>(sec / 3600),
+                  static_cast<long long>(sec / 60 % 60), static_cast<long long>(sec % 60), static_cast<long long>(r / 1'000'000));
+    return std::string(text);
+  };
+  std::mt19937_64 rng(20261207);
+  // 1900 to 2200: every century rule of the calendar, and the years before the epoch.
+  std::uniform_int_distribution<std::int64_t> instant(-2'208'988'800LL * 1'000'000'000, 7'258'118'400LL * 1'000'000'000);
+  for (int i = 0; i < 2000; ++i) {
+    const std::int64_t ns = instant(rng);
+    INFO(ns);
+    REQUIRE(markcell::utc_iso8601_ms(ns) == reference(ns));
+  }
+  CHECK(markcell::utc_iso8601_ms(0) == "1970-01-01T00:00:00.000Z");
+  CHECK(markcell::utc_iso8601_ms(1'700'000'000'999'999'999) == "2023-11-14T22:13:20.999Z");  // rounded down
+  CHECK(markcell::utc_iso8601_ms(951'782'400'123'000'000) == "2000-02-29T00:00:00.123Z");
+  CHECK(markcell::utc_iso8601_ms(-1) == "1969-12-31T23:59:59.999Z");
+}
+
 TEST_CASE("a state file is replaced atomically, its previous versions kept by date and bounded") {
   markcell::test::TempDir dir;
   const auto path = dir.path() / "base.yaml";

@@ -63,6 +63,18 @@ bool is_history_entry(const fs::path& entry, const fs::path& path) {
 std::string utc_iso8601(std::time_t t) { return utc_format(t, "%Y-%m-%dT%H:%M:%SZ"); }
 std::string utc_compact(std::time_t t) { return utc_format(t, "%Y%m%dT%H%M%SZ"); }
 
+std::string utc_iso8601_ms(std::int64_t ns) {
+  constexpr std::int64_t kPerSecond = 1'000'000'000, kPerMilli = 1'000'000;
+  std::int64_t s = ns / kPerSecond, rest = ns % kPerSecond;
+  if (rest < 0) {  // before the epoch: the second below, and the milliseconds from it
+    --s;
+    rest += kPerSecond;
+  }
+  char ms[8];
+  std::snprintf(ms, sizeof ms, ".%03d", static_cast<int>(rest / kPerMilli));
+  return utc_format(static_cast<std::time_t>(s), "%Y-%m-%dT%H:%M:%S") + ms + "Z";
+}
+
 fs::path history_folder(const fs::path& path) { return folder_of(path) / "history"; }
 
 std::vector<fs::path> file_history(const fs::path& path) {

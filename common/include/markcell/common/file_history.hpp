@@ -2,6 +2,7 @@
 // Files the cell keeps as state and must never lose to a crash or a careless rerun: the
 // calibrations (`markcell calibrate-stereo`, `calibrate-base`). Each is replaced
 // atomically, and the file it replaces is kept in a dated, bounded history beside it.
+#include <cstdint>
 #include <ctime>
 #include <filesystem>
 #include <functional>
@@ -14,6 +15,9 @@ namespace markcell {
 std::string utc_iso8601(std::time_t t);
 // ... and as a file name's part, which sorts by time: 20261207T034012Z.
 std::string utc_compact(std::time_t t);
+// `ns` (nanoseconds since the epoch) in UTC to the millisecond, rounded down:
+// 2026-12-07T03:40:12.345Z (the results file's times, docs/operation.md "Time").
+std::string utc_iso8601_ms(std::int64_t ns);
 
 // The history of `path`: its earlier versions, in `history/` beside it, named
 // NAME.YYYYMMDDTHHMMSSZ.EXT (with -02, -03 ... for more than one in a second).

@@ -33,4 +33,12 @@ inline Nanos monotonic_now() {
   return from_timespec(ts);
 }
 
+// CLOCK_REALTIME now, nanoseconds since the epoch: only for the UTC times written beside
+// the cell's own (never for deciding anything: the wall clock may jump).
+inline std::int64_t realtime_now() {
+  timespec ts{};
+  clock_gettime(CLOCK_REALTIME, &ts);
+  return from_timespec(ts);
+}
+
 }  // namespace markcell

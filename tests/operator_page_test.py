@@ -13,6 +13,7 @@ record in the record folder and a PLC script (the panel arrives at 0.5 s and lea
 3.7 s; the browser's run has its e-stop pressed at 9 s), with cell.operator_page on a
 free port of 127.0.0.1.
 """
+import datetime
 import json
 import pathlib
 import re
@@ -26,6 +27,7 @@ import urllib.parse
 import urllib.request
 
 PANEL = "paper-door-1"
+STARTED_UTC = None  # when the cell was started (Python's clock)
 
 
 def fail(msg):
@@ -106,6 +108,8 @@ def start_cell(markcell, source, work, estop_at=None, seconds=14):
         script += f"{estop_at} plc_estop 1\n"
     (work / "plc.txt").write_text(script)
     log = open(work / "run.log", "w")
+    global STARTED_UTC
+    STARTED_UTC = datetime.datetime.now(datetime.timezone.utc)
     cell = subprocess.Popen([markcell, "run", "--config", str(config), "--clock", "real", "--seconds", str(seconds),
                              "--plc-script", str(work / "plc.txt")], stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
@@ -125,7 +129,32 @@ def finish_cell(cell, work):
         fail(f"markcell run exited {rc}")
     if f"panel={PANEL} result=done sprayed=3 skipped=0" not in log:
         fail("the run did not mark the door's three defects")
+    check_utc(work)
     return log
+
+
+def check_utc(work):
+    """The results file's UTC times against Python's own clock and the cell's seconds."""
+    lines = [json.loads(l) for l in (work / "results.jsonl").read_text().splitlines()]
+    result = next(l for l in lines if l.get("panel_id") == PANEL and "started_s" in l)
+    accepted = next(l for l in lines if l.get("accepted"))
+
+    def utc(text):
+        if not re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z", text):
+            fail(f"not ISO 8601 UTC to the millisecond: {text!r}")
+        return datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+    for name, text in (("accepted utc", accepted["utc"]), ("started_utc", result["started_utc"]),
+                       ("finished_utc", result["finished_utc"])):
+        t = utc(text)
+        if not STARTED_UTC - datetime.timedelta(seconds=1) <= t <= now:
+            fail(f"{name} {text} is not within the run ({STARTED_UTC.isoformat()} to {now.isoformat()})")
+    span = (utc(result["finished_utc"]) - utc(result["started_utc"])).total_seconds()
+    if abs(span - (result["finished_s"] - result["started_s"])) > 0.002:
+        fail(f"finished_utc - started_utc = {span} s, finished_s - started_s = "
+             f"{result['finished_s'] - result['started_s']} s")
+    print(f"UTC: accepted {accepted['utc']}, panel {result['started_utc']} to {result['finished_utc']}")
 
 
 def browser(markcell, source, work, screenshot):

@@ -207,7 +207,7 @@ TEST_CASE("/metrics and /api/state say what the executive and the service loop c
   page.update([](OperatorState& st) {
     st.status = "ready: waiting for a panel";
     st.results.push_back(R"({"cell":"c","panel":1,"panel_id":"P-1","fault":false,"defects":[{"id":1,"sprayed":true}]})");
-    st.faults.push_back({1.25, "arm_link", "arm", "no state for 150 ms"});
+    st.faults.push_back({1.25, "1970-01-01T00:00:01.250Z", "arm_link", "arm", "no state for 150 ms"});
     st.panels_done = 1;
     st.defects_sprayed = 1;
     st.faults_total = 1;
@@ -248,6 +248,7 @@ TEST_CASE("/metrics and /api/state say what the executive and the service loop c
   CHECK(j.at("results")[0].at("panel_id") == "P-1");
   CHECK(j.at("faults")[0].at("code") == "arm_link");
   CHECK(j.at("faults")[0].at("detail") == "no state for 150 ms");
+  CHECK(j.at("faults")[0].at("utc") == "1970-01-01T00:00:01.250Z");
   CHECK(j.at("counts").at("panels_done") == 1);
   CHECK(j.at("counts").at("records_accepted") == 2);
   CHECK(j.at("timing").at("tasks").size() == spec.tasks.size());

@@ -64,7 +64,7 @@ TEST_CASE("a full disk mid-line: the partial line is taken back, nothing glued o
     ResultsFile results(path);
     int failures = 0;
     for (int i = 1; i <= 200 && failures == 0; ++i) {
-      results.append(ResultsFile::accepted_json("c", "r" + std::to_string(i), "p" + std::to_string(i)));
+      results.append(ResultsFile::accepted_json("c", "2026-12-07T00:00:00.000Z", "r" + std::to_string(i), "p" + std::to_string(i)));
       try {
         results.append(line_of(i));
         written.push_back(line_of(i));
@@ -100,7 +100,7 @@ TEST_CASE("a torn line that a crash left and a restart ended is no panel's resul
   const std::string path = (dir.path() / "results.jsonl").string();
   {
     std::ofstream out(path);
-    out << ResultsFile::accepted_json("c", "r1", "p1") << "\n";
+    out << ResultsFile::accepted_json("c", "2026-12-07T00:00:00.000Z", "r1", "p1") << "\n";
     const std::string torn = line_of(1);
     out << torn.substr(0, torn.find("\"fault\"") + 14);  // cut after '"fault": false', mid-line
   }
@@ -112,7 +112,7 @@ TEST_CASE("a torn line that a crash left and a restart ended is no panel's resul
   CHECK(h.unfinished[0] == "p1");
   // One cut right after an inner '}' is not whole either.
   const std::string nested = "{\"cell\": \"c\", \"panel_id\": \"p2\", \"intercalibration\": {\"status\": \"ok\"}";
-  results.append(ResultsFile::accepted_json("c", "r2", "p2"));
+  results.append(ResultsFile::accepted_json("c", "2026-12-07T00:00:00.000Z", "r2", "p2"));
   { std::ofstream(path, std::ios::app) << nested << "\n"; }
   CHECK(results.history().unfinished.size() == 2);
 }
@@ -150,15 +150,21 @@ TEST_CASE("results lines parse as JSON whatever bytes their text holds") {
   d->id = 4;
   d->sprayed = true;
   d->spray_requested = seconds(13);
-  const auto line = ResultsFile::to_json(r, "cell-a");
+  r.finished = seconds(14) + millis(2);
+  const auto line = ResultsFile::to_json(r, "cell-a", host::UtcClock{true});  // simulated: 0 s is the epoch
   CHECK(line.find('\n') == std::string::npos);  // one line
   const auto j = test::parse_json(line);
   CHECK(j["cell"] == "cell-a");
   CHECK(j["panel"] == 7);
   CHECK(j["started_s"] == 12.3457);
+  CHECK(j["started_utc"] == "1970-01-01T00:00:12.345Z");  // to the millisecond, rounded down
+  CHECK(j["finished_utc"] == "1970-01-01T00:00:14.002Z");
   CHECK(j["reason"] == "quote \" backslash \\ tab \t newline \n");
-  CHECK(j["defects"][0] == nlohmann::ordered_json{{"id", 4}, {"sprayed", true}, {"spray_s", 13.0}});
-  const auto rejected = test::parse_json(ResultsFile::rejected_json("cell-a", "/drop/bad\xff\xfe.yaml", "", "not UTF-8 \x01"));
+  CHECK(j["defects"][0] ==
+        nlohmann::ordered_json{{"id", 4}, {"sprayed", true}, {"spray_s", 13.0}, {"spray_utc", "1970-01-01T00:00:13.000Z"}});
+  const auto rejected =
+      test::parse_json(ResultsFile::rejected_json("cell-a", "1970-01-01T00:00:15.000Z", "/drop/bad\xff\xfe.yaml", "", "not UTF-8 \x01"));
+  CHECK(rejected["utc"] == "1970-01-01T00:00:15.000Z");
   CHECK(rejected["record"] == "/drop/bad\xEF\xBF\xBD\xEF\xBF\xBD.yaml");  // each bad byte U+FFFD
   CHECK(rejected["rejected"] == "not UTF-8 \x01");
 }

@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
+#include <cmath>
 #include <sys/stat.h>
 #include <algorithm>
 #include <array>
@@ -23,6 +24,7 @@
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
+#include "markcell/common/file_history.hpp"
 #include "markcell/host/results_file.hpp"
 #include "markcell/rig/scoring.hpp"
 #include "markcell/control/tool_pose.hpp"
@@ -114,7 +116,7 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done, wit
     const control::PanelResult r = cell.marking()->results().read();
     if (write) {
       host::ResultsFile file(cfg.results_file);
-      file.append(host::ResultsFile::to_json(r, cfg.name));
+      file.append(host::ResultsFile::to_json(r, cfg.name, host::UtcClock{true}));
       CHECK(cell.marking()->acknowledge_result(r.serial));  // in time
       CHECK(cell.marking()->acknowledge_result(r.serial));  // (said twice: the same answer)
       clock.run_until(t + millis(10));
@@ -138,9 +140,9 @@ TEST_CASE("a panel's result is written and synced before the PLC hears done, wit
       // The line reaching the disk after that: the acknowledgement says it is too late, and
       // the writer's late line makes the file's last word on the panel the PLC's fault.
       host::ResultsFile file(cfg.results_file);
-      file.append(host::ResultsFile::to_json(r, cfg.name));
+      file.append(host::ResultsFile::to_json(r, cfg.name, host::UtcClock{true}));
       CHECK_FALSE(cell.marking()->acknowledge_result(r.serial));
-      file.append(host::ResultsFile::late_json(cfg.name, r.serial, std::string(r.panel_id.view())));
+      file.append(host::ResultsFile::late_json(cfg.name, "1970-01-01T00:00:04.000Z", r.serial, std::string(r.panel_id.view())));
       clock.run_until(t + seconds(4));
       lines();
       CHECK_FALSE(done);  // the PLC's answer stands
@@ -409,13 +411,18 @@ TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder re
   CHECK(std::filesystem::exists(s.drop / "accepted" / "0001.yaml"));
   const auto lines = lines_of(read_file(s.results.string()));
   REQUIRE(lines.size() == 2);
+  // A simulated run's UTC is the simulated clock from the epoch (the same bytes each run).
   CHECK(parse_json(lines[0]) == nlohmann::ordered_json{{"cell", "marking-station-sim"},
+                                                        {"utc", "1970-01-01T00:00:00.200Z"},  // the loop's 2nd step
                                                         {"record", (s.drop / "accepted" / "0001.yaml").string()},
                                                         {"panel_id", "paper-door-1"},
                                                         {"accepted", true}});
   const auto result = parse_json(lines[1]);
   CHECK(result["panel_id"] == "paper-door-1");
   CHECK(result["fault"] == false);
+  const auto ms_of = [](double secs) { return static_cast<std::int64_t>(std::floor(secs * 1000 + 1e-6)); };
+  CHECK(result["started_utc"] == markcell::utc_iso8601_ms(ms_of(result["started_s"].get<double>()) * 1'000'000));
+  CHECK(result["finished_utc"] == markcell::utc_iso8601_ms(ms_of(result["finished_s"].get<double>()) * 1'000'000));
   REQUIRE(result["defects"].size() == 3);
   for (int id = 1; id <= 3; ++id) {
     CHECK(result["defects"][static_cast<std::size_t>(id - 1)]["id"] == id);
@@ -442,6 +449,7 @@ TEST_CASE("run as the service on the simulated clock: PLC script, drop-folder re
   INFO(stop.output);
   REQUIRE(stop.exit_code == 0);
   CHECK(stop.output.find("<3>markcell: fault t=0.60") != std::string::npos);
+  CHECK(stop.output.find(" utc=1970-01-01T00:00:00.60") != std::string::npos);
   CHECK(stop.output.find("code=operator_stop source=plc_estop detail=\"e-stop input active\"") != std::string::npos);
   CHECK(stop.output.find("<3>markcell: panel=paper-door-2 result=fault sprayed=0 skipped=3 reason=\"safe stop during the marking sequence\"") !=
         std::string::npos);
@@ -515,6 +523,7 @@ TEST_CASE("killed with SIGKILL mid-panel and restarted: earlier results intact, 
   CHECK(parse_json(lines[2])["panel_id"] == "paper-door-1");
   CHECK(parse_json(lines[2])["accepted"] == true);
   CHECK(parse_json(lines[3]) == nlohmann::ordered_json{{"cell", "marking-station-sim"},
+                                                       {"utc", "1970-01-01T00:00:00.000Z"},
                                                        {"panel_id", "paper-door-1"},
                                                        {"interrupted", true},
                                                        {"fault", true},

@@ -225,7 +225,7 @@ std::string OperatorPage::state_json() {
   j["results"] = std::move(results);  // newest first
   Json faults = Json::array();
   for (auto it = s.faults.rbegin(); it != s.faults.rend(); ++it)
-    faults.push_back({{"t_s", round2(it->time_s)}, {"code", it->code}, {"source", it->source}, {"detail", it->detail}});
+    faults.push_back({{"t_s", round2(it->time_s)}, {"utc", it->utc}, {"code", it->code}, {"source", it->source}, {"detail", it->detail}});
   j["faults"] = std::move(faults);  // newest first
   // Strings from outside (panel ids, fault details) may hold anything: invalid UTF-8 is
   // replaced rather than refused, so the page always gets its state.

@@ -60,7 +60,7 @@ const char* const kOperatorPageHtml = R"html(<!DOCTYPE html>
     </section>
     <section style="margin-top:12px">
       <h2>Last results</h2>
-      <table id="results"><thead><tr><th>panel</th><th>result</th><th class="num">sprayed</th><th>reason</th></tr></thead><tbody></tbody></table>
+      <table id="results"><thead><tr><th>finished (UTC)</th><th>panel</th><th>result</th><th class="num">sprayed</th><th>reason</th></tr></thead><tbody></tbody></table>
     </section>
     <section style="margin-top:12px">
       <h2>Counts</h2>
@@ -68,7 +68,7 @@ const char* const kOperatorPageHtml = R"html(<!DOCTYPE html>
     </section>
     <section style="margin-top:12px">
       <h2>Faults</h2>
-      <table id="faults"><thead><tr><th class="num">t s</th><th>code</th><th>source</th><th>detail</th></tr></thead><tbody></tbody></table>
+      <table id="faults"><thead><tr><th>time (UTC)</th><th>code</th><th>source</th><th>detail</th></tr></thead><tbody></tbody></table>
     </section>
   </div>
 </main>
@@ -107,7 +107,7 @@ function show(s) {
   }
   fill("results", s.results, (tr, r) => {
     const sprayed = (r.defects || []).filter((d) => d.sprayed).length;
-    cell(tr, r.panel_id || ""); cell(tr, r.fault ? "fault" : "done", r.fault ? "d-pending" : "d-sprayed");
+    cell(tr, (r.finished_utc || r.utc || "").slice(11, 23)); cell(tr, r.panel_id || ""); cell(tr, r.fault ? "fault" : "done", r.fault ? "d-pending" : "d-sprayed");
     cell(tr, r.defects ? sprayed + " of " + r.defects.length : "", "num"); cell(tr, r.reason || "");
   });
   const c = s.counts;
@@ -122,7 +122,7 @@ function show(s) {
     cell(tr, l.name); cell(tr, l.ticks, "num"); cell(tr, l.wake_p50_us, "num"); cell(tr, l.wake_p99_us, "num");
     cell(tr, l.wake_max_us, "num"); cell(tr, l.missed, "num");
   });
-  fill("faults", s.faults.slice(0, 12), (tr, f) => { cell(tr, f.t_s.toFixed(2), "num"); cell(tr, f.code); cell(tr, f.source); cell(tr, f.detail); });
+  fill("faults", s.faults.slice(0, 12), (tr, f) => { cell(tr, f.utc.slice(11, 23)); cell(tr, f.code); cell(tr, f.source); cell(tr, f.detail); });
   $("updates").textContent = String(++updates);
 }
 async function poll() {

@@ -116,17 +116,20 @@ void ResultsFile::append(const std::string& line) {
   if (::fdatasync(fd_) != 0) take_back("syncing a result failed");
 }
 
-std::string ResultsFile::accepted_json(const std::string& cell, const std::string& record, const std::string& panel_id) {
-  return line_of(Json{{"cell", cell}, {"record", record}, {"panel_id", panel_id}, {"accepted", true}});
+std::string ResultsFile::accepted_json(const std::string& cell, const std::string& utc, const std::string& record,
+                                       const std::string& panel_id) {
+  return line_of(Json{{"cell", cell}, {"utc", utc}, {"record", record}, {"panel_id", panel_id}, {"accepted", true}});
 }
 
-std::string ResultsFile::rejected_json(const std::string& cell, const std::string& record, const std::string& panel_id,
-                                       const std::string& reason) {
-  return line_of(Json{{"cell", cell}, {"record", record}, {"panel_id", panel_id}, {"rejected", reason}});
+std::string ResultsFile::rejected_json(const std::string& cell, const std::string& utc, const std::string& record,
+                                       const std::string& panel_id, const std::string& reason) {
+  return line_of(Json{{"cell", cell}, {"utc", utc}, {"record", record}, {"panel_id", panel_id}, {"rejected", reason}});
 }
 
-std::string ResultsFile::late_json(const std::string& cell, std::uint64_t serial, const std::string& panel_id) {
+std::string ResultsFile::late_json(const std::string& cell, const std::string& utc, std::uint64_t serial,
+                                   const std::string& panel_id) {
   return line_of(Json{{"cell", cell},
+                      {"utc", utc},
                       {"panel", serial},
                       {"panel_id", panel_id},
                       {"late", true},
@@ -135,8 +138,9 @@ std::string ResultsFile::late_json(const std::string& cell, std::uint64_t serial
                                  "told fault"}});
 }
 
-std::string ResultsFile::interrupted_json(const std::string& cell, const std::string& panel_id) {
+std::string ResultsFile::interrupted_json(const std::string& cell, const std::string& utc, const std::string& panel_id) {
   return line_of(Json{{"cell", cell},
+                      {"utc", utc},
                       {"panel_id", panel_id},
                       {"interrupted", true},
                       {"fault", true},
@@ -185,13 +189,17 @@ ResultsFile::History ResultsFile::history() const {
   return h;
 }
 
-std::string ResultsFile::to_json(const control::PanelResult& r, const std::string& cell) {
+std::string ResultsFile::to_json(const control::PanelResult& r, const std::string& cell, const UtcClock& utc) {
   const auto& ic = r.intercalibration;
+  const std::int64_t utc_offset = utc.offset();
   const auto triple = [](const Eigen::Vector3d& v) { return Json::array({round4(v.x()), round4(v.y()), round4(v.z())}); };
   Json defects = Json::array();
   for (const control::DefectResult& d : r.defects) {
     Json o{{"id", d.id}, {"sprayed", d.sprayed}};
-    if (d.sprayed) o["spray_s"] = seconds4(d.spray_requested);
+    if (d.sprayed) {
+      o["spray_s"] = seconds4(d.spray_requested);
+      o["spray_utc"] = UtcClock::at(d.spray_requested, utc_offset);
+    }
     if (d.skipped != control::SkipReason::kNone) o["skipped"] = control::to_string(d.skipped);
     defects.push_back(std::move(o));
   }
@@ -200,6 +208,8 @@ std::string ResultsFile::to_json(const control::PanelResult& r, const std::strin
                       {"panel_id", r.panel_id.view()},
                       {"started_s", seconds4(r.started)},
                       {"finished_s", seconds4(r.finished)},
+                      {"started_utc", UtcClock::at(r.started, utc_offset)},
+                      {"finished_utc", UtcClock::at(r.finished, utc_offset)},
                       {"fault", r.fault},
                       {"reason", r.reason.view()},
                       {"intercalibration",

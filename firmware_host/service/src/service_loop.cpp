@@ -32,12 +32,13 @@ void print_faults(control::FaultLog& log) {
 
 }  // namespace
 
-void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records, const Journal& journal) {
+void close_interrupted(ResultsFile& results, const std::string& cell, const std::string& utc, RecordFolder* records,
+                       const Journal& journal) {
   const ResultsFile::History h = results.history();
   if (records != nullptr)
     for (const auto& id : h.panel_ids) records->remember(id);
   for (const auto& id : h.unfinished) {
-    results.append(ResultsFile::interrupted_json(cell, id));
+    results.append(ResultsFile::interrupted_json(cell, utc, id));
     journal.log(3,
                 format("markcell: panel=%s result=fault reason=\"interrupted: markcell stopped after accepting its record "
                        "and before its result\"",
@@ -48,10 +49,11 @@ void close_interrupted(ResultsFile& results, const std::string& cell, RecordFold
 
 ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions options)
     : config_(config), cell_(cell), options_(std::move(options)), script_(options_.plc_events) {
+  utc_.simulated = cell.sim_clock() != nullptr;
   if (!config.results_file.empty() && cell.marking() != nullptr) results_ = std::make_unique<ResultsFile>(config.results_file);
   if (!config.record_folder.empty() && cell.marking() != nullptr)
     records_ = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
-  if (results_) close_interrupted(*results_, config.name, records_.get(), journal_);
+  if (results_) close_interrupted(*results_, config.name, utc_.at(now()), records_.get(), journal_);
   if (!options_.pose_log_folder.empty() && cell.vision_stats() != nullptr) {  // a cell with a vision task
     pose_log_ = std::make_unique<PoseLog>(options_.pose_log_folder, options_.pose_log_mode, options_.pose_log_rotate_bytes);
     cell.enable_pose_queue();  // (before start(), or already by whoever started the cell)
@@ -94,10 +96,10 @@ void ServiceLoop::collect() {
   bool late = false;  // the PLC heard fault before the line reached the disk
   if (results_) {
     try {
-      results_->append(ResultsFile::to_json(r, config_.name));
+      results_->append(ResultsFile::to_json(r, config_.name, utc_));
       if (!m->acknowledge_result(r.serial)) {
         late = true;
-        results_->append(ResultsFile::late_json(config_.name, r.serial, std::string(r.panel_id.view())));
+        results_->append(ResultsFile::late_json(config_.name, utc_.at(now()), r.serial, std::string(r.panel_id.view())));
       }
     } catch (const std::exception& e) {
       late = true;  // never acknowledged: the sequence's wait runs out, the PLC hears fault
@@ -110,9 +112,9 @@ void ServiceLoop::collect() {
   const int sprayed = tally.sprayed, skipped = tally.skipped;
   const bool fault = r.fault || late;
   if (page_) {
-    std::string line = ResultsFile::to_json(r, config_.name);
+    std::string line = ResultsFile::to_json(r, config_.name, utc_);
     while (!line.empty() && line.back() == '\n') line.pop_back();
-    if (late) line = ResultsFile::late_json(config_.name, r.serial, std::string(r.panel_id.view()));
+    if (late) line = ResultsFile::late_json(config_.name, utc_.at(now()), r.serial, std::string(r.panel_id.view()));
     while (!line.empty() && line.back() == '\n') line.pop_back();
     page_->update([&](OperatorState& s) {
       s.results.push_back(std::move(line));
@@ -141,7 +143,8 @@ void ServiceLoop::log_faults() {
   while (cell_.faults().pop(f)) {
     if (page_)
       page_->update([&](OperatorState& s) {
-        s.faults.push_back({to_seconds(f.time), std::string(control::to_string(f.code)), f.source.c_str(), f.detail.c_str()});
+        s.faults.push_back({to_seconds(f.time), utc_.at(f.time), std::string(control::to_string(f.code)), f.source.c_str(),
+                            f.detail.c_str()});
         if (s.faults.size() > OperatorState::kKeptFaults) s.faults.pop_front();
         ++s.faults_total;
       });
@@ -150,10 +153,11 @@ void ServiceLoop::log_faults() {
       continue;
     }
     const std::string code(control::to_string(f.code));
+    const std::string utc = utc_.at(f.time);
     log(3,
-                 format("markcell: fault t=%.6f code=%s source=%s detail=\"%s\"", to_seconds(f.time), code.c_str(),
-                        escape_log(f.source.view()).c_str(), escape_log(f.detail.view()).c_str()),
-                 {{"FAULT_CODE", code}, {"FAULT_SOURCE", f.source.view()}, {"FAULT_DETAIL", f.detail.view()}});
+        format("markcell: fault t=%.6f utc=%s code=%s source=%s detail=\"%s\"", to_seconds(f.time), utc.c_str(), code.c_str(),
+               escape_log(f.source.view()).c_str(), escape_log(f.detail.view()).c_str()),
+        {{"FAULT_CODE", code}, {"FAULT_SOURCE", f.source.view()}, {"FAULT_DETAIL", f.detail.view()}, {"FAULT_UTC", utc}});
   }
 }
 
@@ -168,7 +172,8 @@ void ServiceLoop::take_records(Nanos now) {
       // on leaves a trace the next start answers (close_interrupted).
       if (!cell_.marking()->can_offer()) return false;
       if (results_)
-        results_->append(ResultsFile::accepted_json(config_.name, records_->offering(), std::string(job.panel_id.view())));
+        results_->append(
+            ResultsFile::accepted_json(config_.name, utc_.at(now), records_->offering(), std::string(job.panel_id.view())));
       return cell_.marking()->offer_job(job);
     }, now);
   } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
@@ -187,7 +192,7 @@ void ServiceLoop::take_records(Nanos now) {
                  {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}, {"REJECT_REASON", ev.reason}});
     if (results_) {
       try {
-        results_->append(ResultsFile::rejected_json(config_.name, ev.file, ev.panel_id, ev.reason));
+        results_->append(ResultsFile::rejected_json(config_.name, utc_.at(now), ev.file, ev.panel_id, ev.reason));
       } catch (const std::exception& e) {
         log(3, "markcell: " + escape_log(e.what()));
       }
@@ -387,7 +392,7 @@ int ServiceLoop::run(const sigset_t& signals) {
   write_poses();
   if (results_) {
     try {
-      close_interrupted(*results_, config_.name, nullptr, journal_);
+      close_interrupted(*results_, config_.name, utc_.at(now()), nullptr, journal_);
     } catch (const std::exception& e) {
       log(3, "markcell: " + escape_log(e.what()));
     }

@@ -33,6 +33,7 @@ struct OperatorState {
   static constexpr std::size_t kKeptFaults = 50;
   struct FaultEntry {
     double time_s = 0;  // the cell's clock
+    std::string utc;     // the same in UTC (host/utc_clock.hpp)
     std::string code, source, detail;
   };
   std::string status;  // systemd's status line (the same words)

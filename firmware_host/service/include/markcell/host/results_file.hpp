@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "markcell/control/marking.hpp"
+#include "markcell/host/utc_clock.hpp"
 
 namespace markcell::host {
 
@@ -35,19 +36,24 @@ class ResultsFile {
   void reopen();
   const std::string& path() const { return path_; }
 
-  static std::string to_json(const control::PanelResult& result, const std::string& cell);
+  // The panel's times in the cell's seconds (started_s, finished_s, spray_s) and, by
+  // `utc`, in UTC (started_utc, finished_utc, spray_utc).
+  static std::string to_json(const control::PanelResult& result, const std::string& cell, const UtcClock& utc);
+  // The other lines carry `utc`: when they were written (UtcClock::at of the cell's now).
   // A record taken from the drop folder, written before its panel can start: if the
   // process dies before the panel's result, the next start finds this line unanswered.
-  static std::string accepted_json(const std::string& cell, const std::string& record, const std::string& panel_id);
+  static std::string accepted_json(const std::string& cell, const std::string& utc, const std::string& record,
+                                   const std::string& panel_id);
   // A record the drop folder rejected (moved to `record`), with the reason.
-  static std::string rejected_json(const std::string& cell, const std::string& record, const std::string& panel_id,
-                                   const std::string& reason);
+  static std::string rejected_json(const std::string& cell, const std::string& utc, const std::string& record,
+                                   const std::string& panel_id, const std::string& reason);
   // Appended after a panel's result line that reached the disk only after the marking
   // sequence had stopped waiting for it and told the PLC fault: the panel's last line is
   // then what the PLC heard (a fault), never a done the PLC did not hear.
-  static std::string late_json(const std::string& cell, std::uint64_t serial, const std::string& panel_id);
+  static std::string late_json(const std::string& cell, const std::string& utc, std::uint64_t serial,
+                               const std::string& panel_id);
   // The result written at start-up for such a panel: a fault, with the reason.
-  static std::string interrupted_json(const std::string& cell, const std::string& panel_id);
+  static std::string interrupted_json(const std::string& cell, const std::string& utc, const std::string& panel_id);
 
   // What the file's last kHistoryBytes hold (the recent past; start-up reads no more):
   // the panel ids seen, and those accepted without a result after (in file order).

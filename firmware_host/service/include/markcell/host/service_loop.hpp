@@ -29,6 +29,7 @@
 #include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
+#include "markcell/host/utc_clock.hpp"
 #include "markcell/sim/plc_script.hpp"
 
 namespace markcell::host {
@@ -69,7 +70,9 @@ using StopWait = std::function<int(Nanos timeout)>;
 // Every panel whose record was accepted but whose result never came (the process was
 // killed, the power cut, or it stopped before the panel arrived) gets a fault result
 // now, so no accepted panel is without one; the ids seen are duplicates from now on.
-void close_interrupted(ResultsFile& results, const std::string& cell, RecordFolder* records, const Journal& journal);
+// `utc`: when (docs/operation.md "Time").
+void close_interrupted(ResultsFile& results, const std::string& cell, const std::string& utc, RecordFolder* records,
+                       const Journal& journal);
 
 class ServiceLoop {
  public:
@@ -134,6 +137,7 @@ class ServiceLoop {
   std::uint64_t written_ = 0;
   std::string status_shown_;
   Nanos start_ = 0;
+  UtcClock utc_;  // the results file's and the fault lines' UTC
   int signal_ = 0;
 };
 

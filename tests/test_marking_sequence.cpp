@@ -92,7 +92,8 @@ PanelJob record(const char* id, int defects) {
 }
 
 struct Harness {
-  explicit Harness(MarkingParams p = params())
+  // `line_silent` > 0: pairing by panel id, with the line's announcements in `arrivals`.
+  explicit Harness(MarkingParams p = params(), Nanos line_silent = 0)
       : spec(make_spec()), clock(Executive::clock_lanes(spec)), safe(log), outputs(gpio, kFault),
         plc(gpio, PlcLineMap{kPanel, kEnable, kEstop, kReady, kBusy, kDone, kFault}, safe, millis(3)),
         valve(gpio, kValve, millis(5), millis(500)),
@@ -110,6 +111,7 @@ struct Harness {
     safe.add_output(outputs);
     valve.set_permit(&plc.inputs().spray_permitted);
     arm.use_clock(&clock);
+    if (line_silent > 0) marking.use_line_arrivals(&arrivals, line_silent);
     exec = std::make_unique<Executive>(spec, clock, safe);
     exec->bind("plc_io", &PlcIo::task, &plc);
     exec->bind("spray_valve", &SprayValve::task, &valve);
@@ -149,6 +151,15 @@ struct Harness {
   }
   bool line(int l) const { return gpio.physical(l); }
   const PanelResult& result() const { return marking.current(); }
+  // The line's panel-id source says panel `id` comes next (its `counter`-th announcement).
+  void announce(std::uint32_t counter, std::string_view id, Nanos t) {
+    run_to(t);
+    msg::LineArrival& a = arrivals.write_slot();
+    a.counter = counter;
+    a.panel_id.assign(id);
+    a.heard = clock.global_now();
+    arrivals.publish();
+  }
 
   ExecutiveSpec spec;
   SimClock clock;
@@ -161,6 +172,7 @@ struct Harness {
   MockArm arm;
   TripleBuffer<MarkingEstimate> estimates;
   TripleBuffer<msg::TrackerRequest> requests;
+  TripleBuffer<msg::LineArrival> arrivals;
   MarkingSequence marking;
   std::unique_ptr<Executive> exec;
 };
@@ -362,4 +374,96 @@ TEST_CASE("recipes: each panel runs on its type's, a new set from the next panel
   // More panel types than a cell knows: refused, the set unchanged.
   const std::vector<MarkingParams> too_many(kMaxPanelTypes + 1, fender2);
   CHECK_FALSE(h.marking.set_recipes(too_many));
+}
+
+// Pairing by panel id (docs/line.md): the line's announcements decide which record a
+// panel takes.
+TEST_CASE("pairing by id: the panel starts with the record the line announced for it") {
+  Harness h(Harness::params(), seconds(60));
+  REQUIRE(h.marking.offer_job(record("p-1", 2)));
+  h.enable(true, 0);
+  h.announce(1, "p-1", millis(5));
+  h.panel(true, millis(10));
+  h.run_to(millis(100));
+  CHECK(h.marking.state() == MarkingState::kAcquire);
+  CHECK(h.result().panel_id.view() == "p-1");
+}
+
+TEST_CASE("pairing by id: a record for another panel than the announced one expires, the panel goes by unmarked") {
+  Harness h(Harness::params(), seconds(60));
+  REQUIRE(h.marking.offer_job(record("p-1", 2)));
+  h.enable(true, 0);
+  h.announce(1, "p-2", millis(5));  // p-1 was taken off the line: p-2 comes instead
+  h.panel(true, millis(10));
+  h.run_to(millis(100));
+  CHECK(h.marking.panels_completed() == 1);
+  CHECK(h.result().panel_id.view() == "p-1");
+  CHECK(h.result().fault);
+  CHECK(h.result().reason.view() == "inspection record expired: the line announced panel 'p-2' instead");
+  for (const DefectResult& d : h.result().defects) CHECK(d.skipped == SkipReason::kNoPanel);
+  CHECK(h.line(kFault));
+  CHECK(h.arm.commands.empty());
+  CHECK(h.marking.state() == MarkingState::kWaitRelease);
+  // p-2's own record now: not for this panel (its announcement was answered), nothing starts.
+  REQUIRE(h.marking.offer_job(record("p-2", 1)));
+  h.run_to(millis(2000));
+  CHECK(h.marking.panels_completed() == 1);
+  CHECK(h.arm.commands.empty());
+  h.panel(false, millis(2000));  // it leaves: the fault line drops
+  h.run_to(millis(2100));
+  CHECK_FALSE(h.line(kFault));
+  CHECK(h.marking.state() == MarkingState::kIdle);
+}
+
+TEST_CASE("pairing by id: a panel announced without its record ends with the announced id in its result") {
+  Harness h(Harness::params(), seconds(60));
+  h.enable(true, 0);
+  h.announce(7, "p-9", millis(5));
+  h.panel(true, millis(10));
+  h.run_to(millis(1100));  // record_timeout: 1 s
+  CHECK(h.marking.panels_completed() == 1);
+  CHECK(h.result().panel_id.view() == "p-9");
+  CHECK(h.result().reason.view() == "panel 'p-9' present without its inspection record");
+  CHECK(h.line(kFault));
+  CHECK(h.arm.commands.empty());
+}
+
+TEST_CASE("pairing by id: one announcement starts one panel; the next panel without a new one goes by unmarked") {
+  Harness h(Harness::params(), seconds(60));
+  REQUIRE(h.marking.offer_job(record("p-1", 1)));
+  h.enable(true, 0);
+  h.announce(1, "p-1", millis(5));
+  h.panel(true, millis(10));
+  h.run_to(millis(100));
+  REQUIRE(h.marking.state() == MarkingState::kAcquire);
+  h.panel(false, millis(200));  // it leaves before its MFs are found: the panel ends
+  h.run_to(millis(1000));
+  REQUIRE(h.marking.panels_completed() == 1);
+  REQUIRE(h.marking.state() == MarkingState::kIdle);
+  // A record with the same id again, and a second panel with no new announcement.
+  REQUIRE(h.marking.offer_job(record("p-1", 1)));
+  h.panel(true, millis(1100));
+  h.run_to(millis(2000));
+  CHECK(h.marking.panels_completed() == 1);
+  CHECK(h.marking.state() == MarkingState::kIdle);
+  h.run_to(millis(2300));  // record_timeout after the panel
+  CHECK(h.marking.panels_completed() == 2);
+  CHECK(h.result().panel_id.view() == "(no record)");
+  CHECK(h.result().reason.view() == "panel present, but the line announced no new panel id");
+  CHECK_FALSE(h.marking.can_offer());  // the record was not used: it waits (and expires with no panel)
+}
+
+TEST_CASE("pairing by id: a panel-id source that stops answering stops the cell, naming plc_link and the silence") {
+  Harness h(Harness::params(), millis(500));
+  h.enable(true, 0);
+  h.announce(1, "p-1", millis(100));
+  h.run_to(millis(550));
+  CHECK_FALSE(h.safe.active());  // heard at 100 ms: 450 ms of silence so far
+  h.run_to(millis(700));
+  REQUIRE(h.safe.active());
+  CHECK(h.safe.reason().code == FaultCode::kDeviceFault);
+  CHECK(h.safe.reason().source.view() == "plc_link");
+  // (the marking task runs every 2 ms: the first run past the limit)
+  CHECK(h.safe.reason().detail.view() == "the line's panel-id source has not answered for 502 ms (limit 500 ms)");
+  CHECK(h.line(kFault));
 }

@@ -107,8 +107,23 @@ void MarkingSequence::publish_progress() noexcept {
   progress_.publish();
 }
 
+// Pairing by panel id: the source's newest word, and a safe stop when it has been silent
+// too long (a PLC that stopped answering can no longer say which panel comes).
+void MarkingSequence::check_line_source(const TaskContext& ctx, Nanos now) noexcept {
+  if (first_step_ < 0) first_step_ = now;
+  arrivals_->update();
+  const Nanos heard = std::max(arrivals_->read().heard, first_step_);
+  if (now - heard > line_silent_ && !ctx.safe_stopped()) {
+    FixedString<119> detail;
+    detail.format("the line's panel-id source has not answered for %lld ms (limit %lld ms)",
+                  static_cast<long long>((now - heard) / millis(1)), static_cast<long long>(line_silent_ / millis(1)));
+    ctx.safe_stop().trigger(now, FaultCode::kDeviceFault, "plc_link", detail.view());
+  }
+}
+
 TaskResult MarkingSequence::advance(const TaskContext& ctx) noexcept {
   const Nanos now = ctx.now();
+  if (arrivals_ != nullptr) check_line_source(ctx, now);
   if (estimates_.update()) on_estimate(estimates_.read().pose, estimates_.read().fits, now);
   if (ctx.safe_stopped() && state_ != MarkingState::kReporting) {
     // The safe stop has closed the valve and held the arm; the panel ends here, and its
@@ -130,8 +145,16 @@ TaskResult MarkingSequence::advance(const TaskContext& ctx) noexcept {
         break;
       }
       if (!plc.panel_present || !plc.cycle_enable) present_since_ = -1;
-      else if (waiting) start_panel(now);
-      else if (present_since_ < 0) present_since_ = now;
+      else if (waiting && arrivals_ == nullptr) start_panel(now);
+      else if (waiting && announced(arrivals_->read())) start_panel(now);
+      else if (waiting && arrivals_->read().counter != arrival_used_) {
+        // The line announced another panel than the waiting record's (that panel was
+        // taken off between the announcement and the station): the record's panel never
+        // comes; this one goes by unmarked (its record, if any, is not the waiting one).
+        arrival_used_ = arrivals_->read().counter;
+        record_without_panel(now, &arrivals_->read());
+        fault_until_next_panel_ = false;  // the panel at the station hears it and releases it as it leaves
+      } else if (present_since_ < 0) present_since_ = now;
       else if (now - present_since_ > params_.record_timeout) panel_without_record(now);
       break;
     }
@@ -257,6 +280,7 @@ void MarkingSequence::take_job(Nanos now) {
 
 void MarkingSequence::start_panel(Nanos now) {
   present_since_ = -1;
+  if (arrivals_ != nullptr) arrival_used_ = arrivals_->read().counter;
   ++job_serial_;
   drops_at_start_ = plc_io_.inputs().panel_present_drops;
   take_job(now);
@@ -675,19 +699,31 @@ void MarkingSequence::panel_without_record(Nanos now) {
   result_.started = present_since_;
   result_.fault = true;
   result_.reason.assign("panel present without an inspection record");
+  if (arrivals_ != nullptr) {  // pairing by id: the panel is the one the line announced, if it did
+    const msg::LineArrival& a = arrivals_->read();
+    if (a.counter != 0 && a.counter != arrival_used_ && !a.panel_id.empty()) {
+      result_.panel_id = a.panel_id;
+      result_.reason.format("panel '%s' present without its inspection record", a.panel_id.c_str());
+    } else {
+      result_.reason.assign("panel present, but the line announced no new panel id");
+    }
+    arrival_used_ = a.counter;
+  }
   present_since_ = -1;
   job_.defects.clear();  // (no copy of a whole empty job on the control lane)
   job_.mfs_SL.clear();
   finish_panel(now);
 }
 
-void MarkingSequence::record_without_panel(Nanos now) {
+void MarkingSequence::record_without_panel(Nanos now, const msg::LineArrival* instead) {
   // The record is taken off the mailbox and answered, so the next one (the next panel's)
   // is not held behind it; nothing moved.
   record_since_ = -1;
   take_job(now);
   result_.fault = true;
   result_.reason.assign("inspection record expired: its panel never came");
+  if (instead != nullptr)
+    result_.reason.format("inspection record expired: the line announced panel '%s' instead", instead->panel_id.c_str());
   fault_until_next_panel_ = true;  // no panel to release it: the PLC sees it until the next comes
   for (DefectResult& d : result_.defects) d.skipped = SkipReason::kNoPanel;
   finish_panel(now);

@@ -34,6 +34,7 @@
 #include "markcell/control/spray_valve.hpp"
 #include "markcell/control/tool_pose.hpp"
 #include "markcell/drivers/arm.hpp"
+#include "markcell/msg/line_arrival.hpp"
 #include "markcell/msg/pose_estimate.hpp"
 #include "markcell/msg/tracker_request.hpp"
 
@@ -312,6 +313,17 @@ class MarkingSequence {
   bool offer_job(const PanelJob& job);
   // No job waiting: the next offer_job from the same thread will be taken.
   bool can_offer() const { return !job_waiting_.load(std::memory_order_acquire); }
+  // Pairing by panel id (docs/line.md), before the cell starts: the line's announcements
+  // (the newest; written by the panel-id source). A panel present starts only with the
+  // waiting record whose id the line announced last, once per announcement (its
+  // counter); a record for another id is answered as one whose panel never came; a
+  // panel without its record goes by unmarked with the announced id in its result. No
+  // word from the source for `silent`: safe stop (the cell can no longer tell panels
+  // apart). Null (the default): records pair with panels in order.
+  void use_line_arrivals(TripleBuffer<msg::LineArrival>* arrivals, Nanos silent) {
+    arrivals_ = arrivals;
+    line_silent_ = silent;
+  }
   TaskResult step(const TaskContext& ctx) noexcept;
   static TaskResult task(TaskContext& ctx, void* self) { return static_cast<MarkingSequence*>(self)->step(ctx); }
 
@@ -366,7 +378,8 @@ class MarkingSequence {
   int next_placed() const;
   Nanos latest_start(Nanos now);
   void panel_without_record(Nanos now);
-  void record_without_panel(Nanos now);
+  // `instead`: the line announced that panel (pairing by id) rather than the record's.
+  void record_without_panel(Nanos now, const msg::LineArrival* instead = nullptr);
   void take_job(Nanos now);
   void report_to_plc();
   void fail_panel(Nanos now, std::string_view reason, SkipReason skip);
@@ -423,6 +436,17 @@ class MarkingSequence {
   std::uint64_t drops_at_start_ = 0;  // the PLC filter's panel-present falls when the panel started
   bool panel_left(const PlcInputs& plc) const { return !plc.panel_present || plc.panel_present_drops != drops_at_start_; }
   Nanos record_since_ = -1;   // a record waiting in idle without a panel
+  // Pairing by panel id: the line's announcements, the last one a panel used (its
+  // counter), and when the sequence first ran (the source's silence counts from then).
+  TripleBuffer<msg::LineArrival>* arrivals_ = nullptr;
+  Nanos line_silent_ = seconds(1);
+  std::uint32_t arrival_used_ = 0;
+  Nanos first_step_ = -1;
+  // The newest announcement is fresh (not used by a panel yet) and names the waiting job.
+  bool announced(const msg::LineArrival& a) const {
+    return a.counter != arrival_used_ && a.counter != 0 && a.panel_id.view() == mailbox_.panel_id.view();
+  }
+  void check_line_source(const TaskContext& ctx, Nanos now) noexcept;
   bool fault_until_next_panel_ = false;  // an expired record's fault, held with no panel to release it
   bool planned_ = false;
   Nanos hold_until_ = 0;                // the hold ends then at the latest

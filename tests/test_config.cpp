@@ -3,6 +3,7 @@
 #include <catch2/catch.hpp>
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <numbers>
 #include <sstream>
@@ -501,6 +502,36 @@ TEST_CASE_METHOD(Fixture, "the operator page: off unless given, ADDRESS:PORT, ea
   m = messages(check(replace(kValid, "name: test-cell", "name: test-cell\n  operator_page: [8089]")));
   REQUIRE(m.size() == 1);
   CHECK(m[0].rfind(file() + ":3:18: cell.operator_page: expected ", 0) == 0);
+}
+
+TEST_CASE_METHOD(Fixture, "the line: records in order unless a panel-id source is given and modbus checked key by key") {
+  CHECK(load_config_text(kValid, file(), task_catalog()).line.panel_id_source == PanelIdSource::kNone);
+  REQUIRE(kValid.back() == '\n');
+  const int line = static_cast<int>(std::count(kValid.begin(), kValid.end(), '\n')) + 1;  // the `line:` key's
+  const auto ok = load_config_text(
+      kValid + "line:\n  panel_id_source: modbus\n  modbus:\n    server: 10.0.0.5:502\n    plc_block: 10\n", file(), task_catalog());
+  CHECK(ok.line.panel_id_source == PanelIdSource::kModbus);
+  CHECK(ok.line.modbus.server == "10.0.0.5:502");
+  CHECK(ok.line.modbus.plc_block == 10);
+  CHECK(ok.line.modbus.cell_block == 100);
+  CHECK(ok.line.modbus.poll == millis(20));
+  CHECK(ok.line.silent == seconds(1));
+  const auto at = [&](int l, int c) { return file() + ":" + std::to_string(line + l) + ":" + std::to_string(c) + ": "; };
+  auto m = messages(check(kValid + "line:\n  panel_id_source: modbus\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == at(1, 3) + "line.modbus: missing required key 'modbus.server' (panel_id_source: modbus): the PLC's ADDRESS:PORT");
+  m = messages(check(kValid + "line:\n  panel_id_source: modbus\n  modbus:\n    server: plc.local:502\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == at(3, 13) + "line.modbus.server: 'plc.local' is not an IPv4 address (e.g. 127.0.0.1, or 0.0.0.0 for every interface)");
+  m = messages(check(kValid + "line:\n  panel_id_source: modbus\n  modbus:\n    server: 10.0.0.5:502\n    cell_block: 30\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == at(4, 17) + "line.modbus.cell_block: the cell's block (30..+8) overlaps the PLC's (0..+49)");
+  m = messages(check(kValid + "line:\n  panel_id_source: modbus\n  silent_ms: 50\n  modbus:\n    server: 10.0.0.5:502\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == at(2, 14) + "line.silent_ms: silent_ms 50 must be at least three polls (modbus.poll_ms 20)");
+  m = messages(check(kValid + "line:\n  panel_id_source: opc-ua\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0].rfind(at(1, 20) + "line.panel_id_source: ", 0) == 0);
 }
 
 TEST_CASE_METHOD(Fixture, "the pose log: its folder resolved and required to exist, its rotation size in range") {

@@ -428,7 +428,7 @@ TEST_CASE("pairing by id: a panel announced without its record ends with the ann
   CHECK(h.arm.commands.empty());
 }
 
-TEST_CASE("pairing by id: one announcement starts one panel; the next panel without a new one goes by unmarked") {
+TEST_CASE("pairing by id: one announcement starts one panel and the next panel without a new one goes by unmarked") {
   Harness h(Harness::params(), seconds(60));
   REQUIRE(h.marking.offer_job(record("p-1", 1)));
   h.enable(true, 0);

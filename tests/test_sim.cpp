@@ -550,6 +550,66 @@ TEST_CASE("the whole cell marking a panel (vision, marking, arm link, valve, PLC
   cell.shutdown(control::FaultCode::kShutdown, "test", "done");
 }
 
+TEST_CASE("pairing by the line's panel id: the announced panel is marked and the control lane allocates nothing") {
+  const auto rec = vision::Recording::open(sim_dir() + "/recording");
+  std::vector<vision::MemoryFrameSource::Pair> pairs = decoded_pairs(rec);
+  auto cfg = in_process_config();
+  cfg.line.panel_id_source = host::PanelIdSource::kModbus;  // (the cell takes the words; no PLC link here)
+  cfg.line.modbus.server = "127.0.0.1:1502";
+  host::Cell cell(cfg, host::ClockKind::kSimulated);
+  cell.use_frame_source(std::make_unique<vision::MemoryFrameSource>(std::move(pairs), cfg.cameras.latency));
+  const auto job = host::read_inspection_record(sim_dir() + "/recording/inspection.yaml", cfg.panel_types);
+  // The line's word, as the PLC link writes it every poll: this panel comes next.
+  TripleBuffer<msg::LineArrival>& arrivals = cell.line_arrivals();
+  const auto announce = [&](std::uint32_t counter, std::string_view id) {
+    msg::LineArrival& a = arrivals.write_slot();
+    a.counter = counter;
+    a.panel_id.assign(id);
+    a.panel_type.assign(job.panel_type.view());
+    a.heard = cell.sim_clock()->global_now();
+    arrivals.publish();
+  };
+  cell.start();
+  announce(1, job.panel_id.view());
+  REQUIRE(cell.marking()->offer_job(job));
+  cell.sim_gpio()->drive_physical(cell.gpio_line(host::LineRole::kPlcPanelPresent), true);
+  Nanos t = 0;
+  for (; t < millis(400); t += millis(100)) {
+    REQUIRE(cell.sim_clock()->run_until(t + millis(100)) == control::SimClock::RunResult::kReached);
+    announce(1, job.panel_id.view());
+  }
+  REQUIRE(cell.marking()->state() == control::MarkingState::kApproach);
+  std::size_t allocations = 0;
+  {
+    test::AllocationGuard guard;
+    for (; t < millis(3000); t += millis(100)) {
+      REQUIRE(cell.sim_clock()->run_until(t + millis(100)) == control::SimClock::RunResult::kReached);
+      announce(1, job.panel_id.view());
+    }
+    allocations = guard.allocations();
+  }
+  CHECK(cell.marking()->current().panel_id.view() == job.panel_id.view());
+  CHECK(cell.marking()->current().tally().sprayed == 3);
+  CHECK(cell.sim_nozzle()->kept() == 3);
+  CHECK(allocations == 0);
+  CHECK_FALSE(cell.safe_stop().active());
+  // The PLC's status word's source: the lines as the tasks drove and read them, during
+  // the panel and at its end.
+  const auto level = [&](host::LineRole role) { return (cell.gpio_mirror().levels() >> static_cast<int>(role) & 1u) == 1u; };
+  CHECK(level(host::LineRole::kPlcPanelPresent));
+  CHECK(level(host::LineRole::kPlcBusy));
+  CHECK_FALSE(level(host::LineRole::kSprayValve));
+  for (; cell.marking()->panels_completed() == 0 && t < seconds(10); t += millis(100)) {
+    REQUIRE(cell.sim_clock()->run_until(t + millis(100)) == control::SimClock::RunResult::kReached);
+    announce(1, job.panel_id.view());
+  }
+  REQUIRE(cell.marking()->panels_completed() == 1);
+  CHECK_FALSE(level(host::LineRole::kPlcBusy));
+  CHECK(level(host::LineRole::kPlcDone) == !cell.marking()->current().fault);
+  CHECK(level(host::LineRole::kPlcFault) == cell.marking()->current().fault);
+  cell.shutdown(control::FaultCode::kShutdown, "test", "done");
+}
+
 TEST_CASE("defects the arm cannot reach are planned out at once, reported with the reason, never attempted") {
   test::TempDir dir;
   std::filesystem::copy(source_path("config"), dir.path() / "config", std::filesystem::copy_options::recursive);

@@ -105,6 +105,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   cfg.watchdog.systemd = false;  // no service manager in a rig run
   cfg.results_file.clear();      // the rig writes its report, not the plant's results
   cfg.record_folder.clear();
+  cfg.line = LineConfig{};       // records pair with panels in order: the replay has no line PLC
   cfg.watchdog.device.enabled = false;
   if (!real) {  // (a real-device run's configuration was checked before the first run)
     cfg.gpio.simulated = true;
@@ -116,7 +117,7 @@ PredictorRun run_once(const CellConfig& base, const std::string& recording, cons
   Cell cell(cfg, real ? ClockKind::kReal : ClockKind::kSimulated);
   std::unique_ptr<HilPeer> peer;
   if (real) {
-    auto* lines = dynamic_cast<drivers::GpiodLines*>(&cell.gpio());
+    auto* lines = dynamic_cast<drivers::GpiodLines*>(&cell.gpio_device());
     if (lines == nullptr) throw std::logic_error("a real-device replay without the libgpiod driver");
     std::array<unsigned, kLineRoleCount> offsets{};
     for (std::size_t i = 0; i < kLineRoleCount; ++i) offsets[i] = lines->offset(static_cast<int>(i));

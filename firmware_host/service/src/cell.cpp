@@ -227,10 +227,11 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     sim_gpio_ = gpio.get();
     if (clock == ClockKind::kSimulated)
       sim_gpio_->set_time_source([](void* c) { return static_cast<control::SimClock*>(c)->global_now(); }, sim_clock_);
-    gpio_ = std::move(gpio);
+    gpio_device_ = std::move(gpio);
   } else {
-    gpio_ = std::make_unique<drivers::GpiodLines>(config.gpio.chip);
+    gpio_device_ = std::make_unique<drivers::GpiodLines>(config.gpio.chip);
   }
+  gpio_ = std::make_unique<drivers::MirroredGpioLines>(*gpio_device_);
   std::vector<drivers::LineRequest> requests;
   for (std::size_t i = 0; i < kLineRoleCount; ++i) {
     const auto role = static_cast<LineRole>(i);
@@ -342,6 +343,7 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     lines.fault = gpio_line(LineRole::kPlcFault);
     marking_ = std::make_unique<control::MarkingSequence>(mp, *arm_link_, *spray_valve_, *gpio_, lines, *plc_io_,
                                                           *estimates_, *tracker_requests_);
+    if (config.line.panel_id_source != PanelIdSource::kNone) marking_->use_line_arrivals(&line_arrivals_, config.line.silent);
     if (!marking_->set_recipes(per_type))
       throw std::invalid_argument(config.file + ": " + std::to_string(per_type.size()) + " panel types, at most " +
                                   std::to_string(control::kMaxPanelTypes));

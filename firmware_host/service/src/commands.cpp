@@ -20,6 +20,7 @@ int check_config_command(const std::string& file) {
     // The calibrations it uses, by file, date and fit: the one in use named beside its
     // earlier versions (markcell calibrations lists them).
     if (const std::optional<CellConfig> config = load_or_report(file)) {
+      if (const std::string warning = pairing_warning(*config); !warning.empty()) std::cerr << file << ": warning: " << warning << "\n";
       std::cout << "stereo calibration " << config->calibration.stereo << ": "
                 << calibration_summary(config->calibration.stereo) << "\n";
       if (!config->calibration.base.empty())

@@ -851,6 +851,14 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
   if (const auto m = section("marking")) read_params(r, *m, "marking", cfg.marking);
   read_recipes(r, static_cast<const YAML::Node&>(root)["panel_types"], cfg);
   if (const auto b = section("base_calibration")) read_base_calibration(r, *b, cfg.base_calibration);
+  if (const auto l = section("line")) {
+    read_params(r, *l, "line", cfg.line);
+    std::string address, error;
+    int port = 0;
+    const YAML::Node& line = *l;
+    if (!cfg.line.modbus.server.empty() && !parse_listen_address(cfg.line.modbus.server, address, port, error))
+      r.error(line["modbus"]["server"], "line.modbus.server", error);
+  }
 
   // Simulated devices are advanced by the sim_world task: one without the other is a
   // configuration that cannot run.

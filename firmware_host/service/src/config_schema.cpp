@@ -222,6 +222,8 @@ std::string config_schema_json(TaskTable known_tasks) {
       body = declared_section(vision::TrackerParams{}, s.doc);
     } else if (s.key == "marking") {
       body = declared_section(control::MarkingParams{}, s.doc);
+    } else if (s.key == "line") {
+      body = declared_section(LineConfig{}, s.doc);
     } else if (s.key == "base_calibration") {
       body = declared_section(
           BaseCalibrationConfig{}, s.doc,

@@ -47,6 +47,16 @@ void close_interrupted(ResultsFile& results, const std::string& cell, const std:
   }
 }
 
+std::string pairing_warning(const CellConfig& config) {
+  const bool marks = std::any_of(config.executive.tasks.begin(), config.executive.tasks.end(),
+                                 [](const control::TaskSpec& t) { return t.name == "marking"; });
+  if (!marks || config.record_folder.empty() || config.line.panel_id_source != PanelIdSource::kNone) return {};
+  return "line.panel_id_source is none: records pair with panels in the order they come, so a panel taken off the line "
+         "between the inspection station and this cell shifts every later pairing by one and the next panel of the same "
+         "type is marked with its predecessor's defects (the inter-calibration catches only another panel type); set "
+         "line.panel_id_source: modbus (docs/line.md)";
+}
+
 ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions options)
     : config_(config), cell_(cell), options_(std::move(options)), script_(options_.plc_events) {
   utc_.simulated = cell.sim_clock() != nullptr;
@@ -54,6 +64,14 @@ ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions op
   if (!config.record_folder.empty() && cell.marking() != nullptr)
     records_ = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
   if (results_) close_interrupted(*results_, config.name, utc_.at(now()), records_.get(), journal_);
+  if (config.line.panel_id_source == PanelIdSource::kModbus && cell.marking() != nullptr) {
+    // The PLC must answer before anything moves: a cell that cannot tell panels apart
+    // does not start (systemd retries).
+    line_ = std::make_unique<PlcLink>(
+        config.line.modbus, cell.gpio_mirror(), cell.safe_stop(), cell.line_arrivals(),
+        [](void* self) { return static_cast<ServiceLoop*>(self)->now(); }, this);
+    if (!line_->poll()) throw std::runtime_error("the line's PLC: " + line_->word().error);
+  }
   if (!options_.pose_log_folder.empty() && cell.vision_stats() != nullptr) {  // a cell with a vision task
     pose_log_ = std::make_unique<PoseLog>(options_.pose_log_folder, options_.pose_log_mode, options_.pose_log_rotate_bytes);
     cell.enable_pose_queue();  // (before start(), or already by whoever started the cell)
@@ -124,6 +142,10 @@ void ServiceLoop::collect() {
       s.defects_skipped += static_cast<std::uint64_t>(skipped);
     });
   }
+  if (line_) {
+    line_->report().panels_done.store(static_cast<std::uint32_t>(r.serial), std::memory_order_relaxed);
+    line_->report().last_result.store(fault ? 2 : 1, std::memory_order_relaxed);
+  }
   const std::string_view reason = late ? std::string_view("results file not written in time") : r.reason.view();
   const std::string sprayed_text = std::to_string(sprayed), skipped_text = std::to_string(skipped);
   log(fault ? 3 : 6,
@@ -167,7 +189,7 @@ void ServiceLoop::take_records(Nanos now) {
   if (!records_) return;
   std::vector<RecordEvent> events;
   try {
-    events = records_->poll([&](const control::PanelJob& job) {
+    const auto offer = [&](const control::PanelJob& job) {
       // The accepted line is on disk before the panel can start, so a crash from here
       // on leaves a trace the next start answers (close_interrupted).
       if (!cell_.marking()->can_offer()) return false;
@@ -175,7 +197,14 @@ void ServiceLoop::take_records(Nanos now) {
         results_->append(
             ResultsFile::accepted_json(config_.name, utc_.at(now), records_->offering(), std::string(job.panel_id.view())));
       return cell_.marking()->offer_job(job);
-    }, now);
+    };
+    // Pairing by id: the record of the panel the line announced (nothing while its
+    // block is not valid); else in order.
+    if (line_)
+      events = records_->poll_by_id(offer, line_word_.valid ? line_word_.arrival : msg::LineArrival{},
+                                    config_.marking.record_expiry, now);
+    else
+      events = records_->poll(offer, now);
   } catch (const std::exception& e) {  // the folder itself (permissions, a full disk): the cell runs on
     log(3, format("markcell: record folder %s: %s", escape_log(records_->folder()).c_str(), escape_log(e.what()).c_str()),
                  {{"RECORD_FOLDER", records_->folder()}});
@@ -190,6 +219,7 @@ void ServiceLoop::take_records(Nanos now) {
     }
     log(3, format("markcell: record rejected: %s (moved to %s)", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str()),
                  {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}, {"REJECT_REASON", ev.reason}});
+    if (line_) line_->report().records_rejected.fetch_add(1, std::memory_order_relaxed);
     if (results_) {
       try {
         results_->append(ResultsFile::rejected_json(config_.name, utc_.at(now), ev.file, ev.panel_id, ev.reason));
@@ -208,6 +238,31 @@ void ServiceLoop::apply_plc_events(Nanos elapsed) {
     log(6, format("markcell: plc-script t=%.3f s %s=%d", to_seconds(ev.at), std::string(to_string(ev.line)).c_str(),
                            ev.level ? 1 : 0));
   });
+}
+
+void ServiceLoop::watch_line() {
+  if (!line_) return;
+  if (cell_.sim_clock() != nullptr) line_->poll();  // (the real clock: its own thread polls)
+  LineWord w = line_->word();
+  const std::string peer = line_->peer();
+  if (!w.error.empty() && w.error != line_word_.error) {
+    if (!w.valid)
+      log(3, "markcell: line: the PLC's block is not valid, nothing announced: " + escape_log(w.error),
+          {{"LINE_ERROR", w.error}});
+    else if (!line_failing_)
+      log(3, "markcell: line: the PLC does not answer (the cell stops after line.silent_ms): " + escape_log(w.error),
+          {{"LINE_ERROR", w.error}});
+  }
+  if (w.error.empty() && line_failing_) log(6, "markcell: line: the PLC at " + peer + " answers again");
+  line_failing_ = !w.error.empty() && w.valid;
+  if (w.arrival.counter != line_word_.arrival.counter && w.arrival.counter != 0) {
+    const std::string id(w.arrival.panel_id.view()), type(w.arrival.panel_type.view()), n = std::to_string(w.arrival.counter);
+    log(6,
+        format("markcell: line: panel %s%s%s announced (arrival %s)", escape_log(id).c_str(), type.empty() ? "" : " type ",
+               escape_log(type).c_str(), n.c_str()),
+        {{"PANEL_ID", id}, {"PANEL_TYPE", type}, {"LINE_ARRIVAL", n}});
+  }
+  line_word_ = std::move(w);
 }
 
 void ServiceLoop::log(int priority, std::string_view text, std::initializer_list<JournalField> fields) const {
@@ -303,6 +358,7 @@ LoopEnd ServiceLoop::supervise_steps(const StopWait& wait) {
     apply_plc_events(t);
     collect();
     log_faults();
+    watch_line();
     take_records(now());
     write_poses();
     if (options_.on_step) options_.on_step(t);
@@ -319,6 +375,12 @@ void ServiceLoop::start() {
   const bool simulated = options_.clock == ClockKind::kSimulated;
   cell_.start();
   for (const auto& w : cell_.privilege_warnings()) log(4, "markcell: warning: " + escape_log(w));
+  if (const std::string warning = pairing_warning(config_); !warning.empty()) log(4, "markcell: warning: " + warning);
+  if (line_) {
+    if (!simulated) line_->start_thread();
+    log(6, format("markcell: line: records pair with panels by the id the PLC at %s announces (Modbus TCP, unit %d)",
+                  line_->peer().c_str(), config_.line.modbus.unit_id));
+  }
   if (page_) {
     page_->start();
     log(6, format("markcell: operator page on http://%s:%d/ (read-only; Prometheus metrics at /metrics)",
@@ -389,6 +451,10 @@ int ServiceLoop::run(const sigset_t& signals) {
   }
   cell_.shutdown(control::FaultCode::kShutdown, "markcell", stop_reason);
   collect();
+  if (line_) {  // the PLC's last word from this cell: its stop (then no more answers)
+    line_->stop();
+    line_->poll();
+  }
   write_poses();
   if (results_) {
     try {

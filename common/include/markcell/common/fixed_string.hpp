@@ -30,6 +30,7 @@ class FixedString {
   const char* c_str() const { return data_.data(); }
   std::size_t size() const { return size_; }
   bool empty() const { return size_ == 0; }
+  static constexpr std::size_t capacity() { return Capacity; }
 
  private:
   std::array<char, Capacity + 1> data_{};

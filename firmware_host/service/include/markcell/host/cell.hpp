@@ -19,6 +19,7 @@
 #include "markcell/drivers/camera.hpp"
 #include "markcell/drivers/can_arm_link.hpp"
 #include "markcell/drivers/gpio.hpp"
+#include "markcell/drivers/gpio_mirror.hpp"
 #include "markcell/drivers/serial_arm_link.hpp"
 #include "markcell/drivers/watchdog_device.hpp"
 #include "markcell/common/spsc_ring.hpp"
@@ -104,7 +105,13 @@ class Cell {
   control::SafeStop& safe_stop() { return safe_stop_; }
   control::FaultLog& faults() { return faults_; }
   drivers::SimGpioLines* sim_gpio() { return sim_gpio_; }
+  // The lines every task drives (the device, mirrored: gpio_mirror()); the device itself.
   drivers::GpioLines& gpio() { return *gpio_; }
+  drivers::GpioLines& gpio_device() { return *gpio_device_; }
+  const drivers::MirroredGpioLines& gpio_mirror() const { return *gpio_; }
+  // The line's announcements for the marking task (pairing by panel id, `line:`); the
+  // panel-id source (host/plc_link.hpp) is their one writer.
+  TripleBuffer<msg::LineArrival>& line_arrivals() { return line_arrivals_; }
   int gpio_line(LineRole role) const { return static_cast<int>(role); }
   // Simulated GPIO only: the PLC drives an input to a logical level (active_low applied).
   void drive_sim_input(LineRole role, bool logical) {
@@ -166,8 +173,10 @@ class Cell {
   control::SimClock* sim_clock_ = nullptr;
   control::FaultLog faults_;
   control::SafeStop safe_stop_{faults_};
-  std::unique_ptr<drivers::GpioLines> gpio_;
+  std::unique_ptr<drivers::GpioLines> gpio_device_;
+  std::unique_ptr<drivers::MirroredGpioLines> gpio_;  // gpio_device_ with its levels mirrored
   drivers::SimGpioLines* sim_gpio_ = nullptr;
+  TripleBuffer<msg::LineArrival> line_arrivals_;
   std::unique_ptr<control::GpioSafeOutputs> gpio_safe_;
   std::unique_ptr<control::PlcIo> plc_io_;
   std::unique_ptr<control::SprayValve> spray_valve_;

@@ -341,6 +341,60 @@ struct BaseCalibrationConfig {
   }
 };
 
+// `line`: where the marking station learns which panel comes next (docs/line.md). With
+// no source, records pair with panels in the order they come (check-config warns).
+enum class PanelIdSource : std::uint8_t { kNone, kModbus };
+
+// `line.modbus`: the line's PLC as a Modbus TCP server (the register map: docs/line.md).
+struct ModbusLinkConfig {
+  std::string server;  // ADDRESS:PORT (IPv4)
+  int unit_id = 1;
+  int plc_block = 0;
+  int cell_block = 100;
+  Nanos poll = millis(20);
+  Nanos response_timeout = millis(200);
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"server", Unit::kNone, 1, 64, "the PLC's Modbus TCP server, ADDRESS:PORT (IPv4)", true}, server);
+    v(Param{"unit_id", Unit::kNone, 0, 255, "the unit (slave) id the PLC answers to"}, unit_id);
+    v(Param{"plc_block", Unit::kNone, 0, 65535 - 49, "first holding register of the PLC's block (50 registers)"}, plc_block);
+    v(Param{"cell_block", Unit::kNone, 0, 65535 - 8, "first holding register of the cell's block (9 registers)"}, cell_block);
+    v(Param{"poll_ms", Unit::kMillisecond, 5, 1000, "one exchange (write the cell's block, read the PLC's) this often"}, poll);
+    v(Param{"response_timeout_ms", Unit::kMillisecond, 10, 5000, "a request (or the connection) unanswered this long fails"},
+      response_timeout);
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    if (cell_block < plc_block + 50 && plc_block < cell_block + 9)
+      report("cell_block", "the cell's block (" + std::to_string(cell_block) + "..+8) overlaps the PLC's (" +
+                               std::to_string(plc_block) + "..+49)");
+  }
+};
+
+struct LineConfig {
+  PanelIdSource panel_id_source = PanelIdSource::kNone;
+  ModbusLinkConfig modbus;
+  Nanos silent = seconds(1);
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"panel_id_source", Unit::kNone, 0, 0, "none (records pair with panels in order) | modbus (the PLC says which)"},
+      Choice<PanelIdSource, 2>{panel_id_source, {{{"none", PanelIdSource::kNone}, {"modbus", PanelIdSource::kModbus}}}});
+    v(Param{"silent_ms", Unit::kMillisecond, 50, 60'000, "the panel-id source unanswered this long: safe stop"}, silent);
+    v(Param{"modbus", Unit::kNone, 0, 0, "the PLC over Modbus TCP (required with panel_id_source: modbus)"},
+      Section<ModbusLinkConfig>{modbus});
+  }
+  template <class Report>
+  void validate(Report&& report) const {
+    if (panel_id_source == PanelIdSource::kModbus && modbus.server.empty())
+      report("modbus", "missing required key 'modbus.server' (panel_id_source: modbus): the PLC's ADDRESS:PORT");
+    if (panel_id_source == PanelIdSource::kModbus && silent < 3 * modbus.poll)
+      report("silent_ms", "silent_ms " + std::to_string(silent / millis(1)) + " must be at least three polls (modbus.poll_ms " +
+                              std::to_string(modbus.poll / millis(1)) + ")");
+  }
+};
+
 struct CellConfig {
   std::string file;     // the YAML file it came from
   std::string name;
@@ -361,6 +415,7 @@ struct CellConfig {
   vision::TrackerParams vision;    // the `vision:` section (its keys declared in TrackerParams::Visit)
   control::MarkingParams marking;  // the `marking:` section (MarkingParams::Visit); the cell fills in the rest
   BaseCalibrationConfig base_calibration;
+  LineConfig line;  // the `line:` section: the panel-id source
 };
 
 // What the loader knows of a task. The cell's task table (cell.cpp, kCellTasks) declares
@@ -398,7 +453,7 @@ struct ConfigSection {
   bool required;
   std::string_view doc;
 };
-inline constexpr std::array<ConfigSection, 11> kConfigSections{{
+inline constexpr std::array<ConfigSection, 12> kConfigSections{{
     {"cell", true, "the cell's name, its results file and its inspection-record folder"},
     {"executive", true, "the base tick, the lanes (threads) and the task table"},
     {"watchdog", true, "systemd's watchdog and the hardware watchdog device"},
@@ -410,6 +465,7 @@ inline constexpr std::array<ConfigSection, 11> kConfigSections{{
     {"vision", false, "the panel tracker (all keys optional)"},
     {"marking", false, "the marking sequence (all keys optional)"},
     {"base_calibration", false, "markcell calibrate-base: the board and the poses"},
+    {"line", false, "where the cell learns which panel comes next: the PLC over Modbus TCP, or none (in order)"},
 }};
 
 // A JSON Schema (draft-07) of the configuration, generated from the same declarations

@@ -21,12 +21,14 @@
 
 #include <deque>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "markcell/control/marking.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/msg/line_arrival.hpp"
 
 namespace markcell::host {
 
@@ -49,6 +51,15 @@ class RecordFolder {
   // returns false while a record still waits (it stays, parsed, for the next poll).
   std::vector<RecordEvent> poll(const std::function<bool(const control::PanelJob&)>& offer, Nanos now);
   const std::string& folder() const { return folder_; }
+  // Pairing by panel id (docs/line.md): every valid record is read into a pool (at most
+  // kMaxPool, in name order; none holds another back) and the one whose id the line
+  // announced last (`wanted`) is passed to `offer`, once per announcement (its counter).
+  // A record whose panel type differs from the announced one is rejected; a record in the
+  // pool longer than `expiry` is rejected as expired (its panel was never announced).
+  std::vector<RecordEvent> poll_by_id(const std::function<bool(const control::PanelJob&)>& offer,
+                                      const msg::LineArrival& wanted, Nanos expiry, Nanos now);
+  static constexpr std::size_t kMaxPool = 64;
+  std::size_t pooled() const { return pool_.size(); }
   // A panel id received before this start (from the results file): a record with it again
   // is a duplicate.
   void remember(const std::string& panel_id);
@@ -69,6 +80,19 @@ class RecordFolder {
     }
   };
   RecordEvent reject(const std::string& name, const std::string& reason, const std::string& panel_id = "");
+  std::vector<std::string> candidates() const;  // NAME.yaml entries, in name order
+  // A first look at a candidate: kGone (vanished), kRejected (no regular file, too large:
+  // moved to rejected/ while `may_reject`), kSkipped (such a file when it may not
+  // reject), kNew (not seen unchanged by the last poll) or kStable; `cur` as seen now.
+  enum class Look { kGone, kRejected, kSkipped, kNew, kStable };
+  Look look(const std::string& name, Seen& cur, bool may_reject, std::vector<RecordEvent>& events);
+  // Reads and validates a stable candidate: kWait (no end marker yet, within the wait),
+  // kRejected (moved to rejected/ with the reason) or kOk (`job` filled). `also_taken`:
+  // ids held elsewhere (the pool) that make it a duplicate.
+  enum class Read { kWait, kRejected, kOk };
+  Read read(const std::string& name, Seen& cur, Nanos now, control::PanelJob& job, std::vector<RecordEvent>& events,
+            const std::vector<std::string>& also_taken = {});
+  RecordEvent accept(const std::string& name, const control::PanelJob& job);
   std::string unique_in(const char* sub, const std::string& name) const;
   static constexpr std::size_t kRecentIds = 4096;  // duplicate panel ids are caught among these
   std::string folder_;
@@ -79,6 +103,13 @@ class RecordFolder {
   std::vector<Seen> previous_;               // the candidates the last poll saw, in name order
   std::optional<Seen> parsed_of_;            // the record parsed_ holds
   std::optional<control::PanelJob> parsed_;  // valid, waiting for the sequence
+  struct Pooled {  // pairing by id: a valid record waiting for its panel's announcement
+    Seen seen;
+    std::unique_ptr<control::PanelJob> job;
+    Nanos read_at = 0;
+  };
+  std::vector<Pooled> pool_;
+  std::uint32_t offered_counter_ = 0;  // the announcement a record was last offered for
 };
 
 }  // namespace markcell::host

@@ -26,6 +26,7 @@
 #include "markcell/host/exit_codes.hpp"
 #include "markcell/host/journal.hpp"
 #include "markcell/host/operator_page.hpp"
+#include "markcell/host/plc_link.hpp"
 #include "markcell/host/pose_log.hpp"
 #include "markcell/host/record_folder.hpp"
 #include "markcell/host/results_file.hpp"
@@ -74,6 +75,10 @@ using StopWait = std::function<int(Nanos timeout)>;
 void close_interrupted(ResultsFile& results, const std::string& cell, const std::string& utc, RecordFolder* records,
                        const Journal& journal);
 
+// What pairing records by order risks, when the configuration has a marking task, a
+// record folder and no panel-id source (check-config and run warn); empty otherwise.
+std::string pairing_warning(const CellConfig& config);
+
 class ServiceLoop {
  public:
   // Opens the results file and the record folder before anything moves (a cell that could
@@ -105,6 +110,7 @@ class ServiceLoop {
   void write_poses();
   const PoseLog* pose_log() const { return pose_log_.get(); }
   OperatorPage* operator_page() { return page_.get(); }
+  PlcLink* plc_link() { return line_.get(); }
   Nanos elapsed() const;                  // since the loop's start
 
  private:
@@ -112,6 +118,10 @@ class ServiceLoop {
   void log_faults();
   void take_records(Nanos now);
   void apply_plc_events(Nanos elapsed);
+  // The line's PLC: its newest word looked at (the simulated clock: one exchange first);
+  // each announcement, a PLC that stops or starts answering and a block that is not
+  // valid logged once.
+  void watch_line();
   // SIGHUP (systemctl reload): the panel types' recipes from the configuration file as it
   // is now, for the panels whose record is taken from now on, and the results file
   // reopened. A file that is not valid now, or whose panel types changed, changes
@@ -132,6 +142,9 @@ class ServiceLoop {
   std::unique_ptr<RecordFolder> records_;
   std::unique_ptr<PoseLog> pose_log_;
   std::unique_ptr<OperatorPage> page_;
+  std::unique_ptr<PlcLink> line_;  // the panel-id source (line.panel_id_source: modbus)
+  LineWord line_word_;             // as the last step saw it
+  bool line_failing_ = false;
   std::uint64_t poses_dropped_seen_ = 0, poses_failed_seen_ = 0;
   sim::PlcScript script_;
   std::uint64_t written_ = 0;

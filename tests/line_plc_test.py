@@ -22,6 +22,7 @@ the cell's:
              plc_link, exit 1, the panel's result a fault
 """
 import asyncio
+import datetime
 import json
 import pathlib
 import re
@@ -32,6 +33,7 @@ import threading
 import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import operator_page_test  # noqa: E402
 from operator_page_test import fail, free_port, wait_for  # noqa: E402
 
 from pymodbus.datastore import ModbusSequentialDataBlock, ModbusServerContext, ModbusSlaveContext  # noqa: E402
@@ -110,30 +112,13 @@ class Plc:
 
 
 def cell_config(source, work, recording, plc):
-    text = (source / "config" / "cell.example.yaml").read_text()
-    config_dir = source / "config"
-    edits = [
-        (r"(?m)^  # results_file: \S+", f"  results_file: {work / 'results.jsonl'}"),
-        (r"(?m)^  # record_folder: (\S+)(.*)$", rf"  record_folder: {work / 'records'}\2"),
-        (r"(?m)^    source: simulated ", "    source: recording "),
-        (r"(?m)^    # recording: /path/to/recording", f"    recording: {recording / 'recording'}"),
-        (r"(?m)^(  stereo|  base): calibration/", rf"\1: {config_dir}/calibration/"),
-        (r"file: panels/", f"file: {config_dir}/panels/"),
+    return operator_page_test.cell_config(source, work, recording=recording, extra=[
         (r"(?m)^  record_expiry_s: 300 ", "  record_expiry_s: 3   "),
-        # (a shared 2-core host, no real-time kernel: an overrun is logged, not a stop)
-        (r"on_overrun: safe_stop", "on_overrun: log"),
         (r"(?m)^  panel_id_source: none .*$", "  panel_id_source: modbus"),
         (r"(?m)^  silent_ms: 1000 .*$",
          f"  silent_ms: 500\n  modbus:\n    server: 127.0.0.1:{plc.port}\n    unit_id: {UNIT}\n"
          f"    plc_block: {PLC_BLOCK}\n    cell_block: {CELL_BLOCK}\n    poll_ms: 20"),
-    ]
-    for pattern, replacement in edits:
-        text, n = re.subn(pattern, replacement, text)
-        if n == 0:
-            fail(f"cell.example.yaml no longer has what the test edits: {pattern}")
-    path = work / "cell.yaml"
-    path.write_text(text)
-    return path
+    ])
 
 
 def record_with_id(recording, panel_id):
@@ -186,10 +171,14 @@ def main(argv):
 
     if case == "paired":
         (work / "records" / "0001.yaml").write_text(record_with_id(recording, PANEL))
-        plc.announce(PANEL, "door")
         # The panel stays 2 s after its marking (about 3 s) so that the PLC sees the done line.
         (work / "plc.txt").write_text("0.5 plc_panel_present 1\n5.5 plc_panel_present 0\n")
         cell = run_cell(markcell, work, config, 8)
+        # Announced once the cell answers (its first exchange comes before its PLC script's
+        # clock starts): the time from the announcement to the record's acceptance.
+        wait_for("the cell's first exchange", lambda: running(cell, work) and plc.cell_block()[1] != 0, 20)
+        announced_at = datetime.datetime.now(datetime.timezone.utc)
+        plc.announce(PANEL, "door")
         history = []  # the cell's block as the PLC saw it, every 20 ms
 
         def cell_says_done():
@@ -219,6 +208,12 @@ def main(argv):
             fail("the announced door was not marked")
         if f"line: panel {PANEL} type door announced (arrival 1)" not in log:
             fail("the announcement is not in the journal")
+        accepted = next(r for r in results if r.get("accepted"))
+        at = datetime.datetime.fromisoformat(accepted["utc"].replace("Z", "+00:00"))
+        # (the results file's UTC is rounded down to the millisecond)
+        if at < announced_at - datetime.timedelta(milliseconds=1):
+            fail(f"the record was accepted at {accepted['utc']}, before the announcement at {announced_at.isoformat()}")
+        print(f"announcement to the record accepted: {(at - announced_at).total_seconds() * 1e3:.0f} ms")
         print(f"cell block after the panel: {b}")
 
     elif case == "removed":

@@ -70,22 +70,26 @@ def make_recording(markcell, source, work):
             fail(f"markcell sim wrote no {name}")
 
 
-def cell_config(source, work, port):
-    """The shipped example with the recording as the cameras, as an integrator edits it."""
+def cell_config(source, work, port=None, recording=None, extra=()):
+    """The shipped example with the recording as the cameras, as an integrator edits it:
+    the operator page on `port` (none: off), the recording `recording` (default: the
+    fixture's, in WORK_DIR/sim), then the `extra` (pattern, replacement) edits."""
     text = (source / "config" / "cell.example.yaml").read_text()
     config_dir = source / "config"
+    recording = recording or work / "sim"
+    page = f"\n  operator_page: 127.0.0.1:{port}" if port else ""
     edits = [
         (r"(?m)^  # results_file: \S+", f"  results_file: {work / 'results.jsonl'}"),
-        (r"(?m)^  # record_folder: (\S+)(.*)$", rf"  record_folder: {work / 'records'}\2\n  operator_page: 127.0.0.1:{port}"),
+        (r"(?m)^  # record_folder: (\S+)(.*)$", rf"  record_folder: {work / 'records'}\2{page}"),
         (r"(?m)^    source: simulated ", "    source: recording "),
-        (r"(?m)^    # recording: /path/to/recording", f"    recording: {work / 'sim' / 'recording'}"),
+        (r"(?m)^    # recording: /path/to/recording", f"    recording: {recording / 'recording'}"),
         (r"(?m)^(  stereo|  base): calibration/", rf"\1: {config_dir}/calibration/"),
         (r"file: panels/", f"file: {config_dir}/panels/"),
         # This host is no real-time host and shares its two cores with Chromium or
         # Prometheus: an overrun is logged here, not a stop (tests of the scheduler
         # cover the stop).
         (r"on_overrun: safe_stop", "on_overrun: log"),
-    ]
+    ] + list(extra)
     for pattern, replacement in edits:
         text, n = re.subn(pattern, replacement, text)
         if n == 0:

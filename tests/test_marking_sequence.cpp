@@ -453,6 +453,51 @@ TEST_CASE("pairing by id: one announcement starts one panel and the next panel w
   CHECK_FALSE(h.marking.can_offer());  // the record was not used: it waits (and expires with no panel)
 }
 
+TEST_CASE("pairing by id: a record offered for a panel the line then replaces expires at once and the next panel is marked") {
+  Harness h(Harness::params(), seconds(60));
+  h.enable(true, 0);
+  h.announce(1, "p-1", millis(5));
+  PanelJob first = record("p-1", 2);
+  first.announced = 1;  // as the drop folder offers it: for announcement 1
+  REQUIRE(h.marking.offer_job(first));
+  h.announce(2, "p-2", millis(50));  // p-1 taken off before the station: p-2 comes
+  h.run_to(millis(60));
+  CHECK(h.marking.panels_completed() == 1);
+  CHECK(h.result().panel_id.view() == "p-1");
+  CHECK(h.result().reason.view() == "inspection record expired: the line announced panel 'p-2' instead");
+  for (const DefectResult& d : h.result().defects) CHECK(d.skipped == SkipReason::kNoPanel);
+  REQUIRE(h.marking.can_offer());  // p-2's record is not held behind it
+  PanelJob second = record("p-2", 1);
+  second.announced = 2;
+  REQUIRE(h.marking.offer_job(second));
+  h.panel(true, millis(100));
+  h.run_to(millis(200));
+  CHECK(h.marking.state() == MarkingState::kAcquire);
+  CHECK(h.result().panel_id.view() == "p-2");
+  CHECK_FALSE(h.line(kFault));  // the new panel's start cleared the expired record's fault
+}
+
+TEST_CASE("pairing by id: a record that comes after its panel went by expires at once") {
+  Harness h(Harness::params(), seconds(60));
+  h.enable(true, 0);
+  h.announce(1, "p-9", millis(5));
+  h.panel(true, millis(10));
+  h.run_to(millis(1100));  // record_timeout: the panel goes by without its record
+  REQUIRE(h.marking.panels_completed() == 1);
+  h.panel(false, millis(1200));
+  h.run_to(millis(1300));
+  REQUIRE(h.marking.state() == MarkingState::kIdle);
+  PanelJob late = record("p-9", 1);
+  late.announced = 1;
+  REQUIRE(h.marking.offer_job(late));
+  h.run_to(millis(1400));
+  CHECK(h.marking.panels_completed() == 2);
+  CHECK(h.result().panel_id.view() == "p-9");
+  CHECK(h.result().reason.view() == "inspection record expired: its panel went by before it came");
+  CHECK(h.marking.can_offer());
+  CHECK(h.arm.commands.empty());
+}
+
 TEST_CASE("pairing by id: a panel-id source that stops answering stops the cell, naming plc_link and the silence") {
   Harness h(Harness::params(), millis(500));
   h.enable(true, 0);

@@ -144,6 +144,21 @@ TaskResult MarkingSequence::advance(const TaskContext& ctx) noexcept {
         record_without_panel(now);
         break;
       }
+      if (waiting && arrivals_ != nullptr && mailbox_.announced != 0 && !plc.panel_present) {
+        // Pairing by id, the record offered for an announcement: the line has moved on
+        // to another panel (its panel was taken off before the station), or its panel
+        // went by without it (the record came late). It is answered now, so that the
+        // next announced panel's record is not held behind it.
+        const msg::LineArrival& a = arrivals_->read();
+        if (a.counter != mailbox_.announced) {
+          record_without_panel(now, Expiry::kAnotherAnnounced, &a);
+          break;
+        }
+        if (a.counter == arrival_used_) {
+          record_without_panel(now, Expiry::kPanelWentBy);
+          break;
+        }
+      }
       if (!plc.panel_present || !plc.cycle_enable) present_since_ = -1;
       else if (waiting && arrivals_ == nullptr) start_panel(now);
       else if (waiting && announced(arrivals_->read())) start_panel(now);
@@ -152,7 +167,7 @@ TaskResult MarkingSequence::advance(const TaskContext& ctx) noexcept {
         // taken off between the announcement and the station): the record's panel never
         // comes; this one goes by unmarked (its record, if any, is not the waiting one).
         arrival_used_ = arrivals_->read().counter;
-        record_without_panel(now, &arrivals_->read());
+        record_without_panel(now, Expiry::kAnotherAnnounced, &arrivals_->read());
         fault_until_next_panel_ = false;  // the panel at the station hears it and releases it as it leaves
       } else if (present_since_ < 0) present_since_ = now;
       else if (now - present_since_ > params_.record_timeout) panel_without_record(now);
@@ -715,15 +730,16 @@ void MarkingSequence::panel_without_record(Nanos now) {
   finish_panel(now);
 }
 
-void MarkingSequence::record_without_panel(Nanos now, const msg::LineArrival* instead) {
+void MarkingSequence::record_without_panel(Nanos now, Expiry why, const msg::LineArrival* instead) {
   // The record is taken off the mailbox and answered, so the next one (the next panel's)
   // is not held behind it; nothing moved.
   record_since_ = -1;
   take_job(now);
   result_.fault = true;
   result_.reason.assign("inspection record expired: its panel never came");
-  if (instead != nullptr)
+  if (why == Expiry::kAnotherAnnounced && instead != nullptr)
     result_.reason.format("inspection record expired: the line announced panel '%s' instead", instead->panel_id.c_str());
+  if (why == Expiry::kPanelWentBy) result_.reason.assign("inspection record expired: its panel went by before it came");
   fault_until_next_panel_ = true;  // no panel to release it: the PLC sees it until the next comes
   for (DefectResult& d : result_.defects) d.skipped = SkipReason::kNoPanel;
   finish_panel(now);

@@ -7,6 +7,7 @@
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
+#include <initializer_list>
 #include <stdexcept>
 
 #include <httplib.h>
@@ -274,18 +275,18 @@ std::string OperatorPage::metrics_text() {
   }
   const control::Executive& exec = cell_.executive();
   const control::ExecutiveSpec& spec = exec.spec();
+  // A Prometheus summary of one histogram: its quantiles, sum and count, under one label.
+  const auto summary = [&](const char* metric, const char* key, const std::string& value, const control::Histogram& h,
+                           std::initializer_list<double> quantiles) {
+    for (const double q : quantiles)
+      append(out, "%s{%s=\"%s\",quantile=\"%g\"} %.9f\n", metric, key, value.c_str(), q, to_seconds(h.percentile(q)));
+    append(out, "%s_sum{%s=\"%s\"} %.9f\n", metric, key, value.c_str(), h.mean() * 1e-9 * static_cast<double>(h.count()));
+    append(out, "%s_count{%s=\"%s\"} %llu\n", metric, key, value.c_str(), static_cast<unsigned long long>(h.count()));
+  };
   family(out, "markcell_task_exec_seconds", "summary", "CPU time per run of each task (log-linear histogram, within 6.25 %)");
-  for (std::size_t i = 0; i < spec.tasks.size(); ++i) {
-    const std::string name = label(spec.tasks[i].name);
-    const control::Histogram& h = exec.task_stats(static_cast<int>(i)).exec;
-    for (const double q : {0.5, 0.99})
-      append(out, "markcell_task_exec_seconds{task=\"%s\",quantile=\"%g\"} %.9f\n", name.c_str(), q,
-             to_seconds(h.percentile(q)));
-    append(out, "markcell_task_exec_seconds_sum{task=\"%s\"} %.9f\n", name.c_str(),
-           h.mean() * 1e-9 * static_cast<double>(h.count()));
-    append(out, "markcell_task_exec_seconds_count{task=\"%s\"} %llu\n", name.c_str(),
-           static_cast<unsigned long long>(h.count()));
-  }
+  for (std::size_t i = 0; i < spec.tasks.size(); ++i)
+    summary("markcell_task_exec_seconds", "task", label(spec.tasks[i].name), exec.task_stats(static_cast<int>(i)).exec,
+            {0.5, 0.99});
   family(out, "markcell_task_budget_seconds", "gauge", "each task's execution budget");
   for (const control::TaskSpec& t : spec.tasks)
     append(out, "markcell_task_budget_seconds{task=\"%s\"} %.9f\n", label(t.name).c_str(), to_seconds(t.budget));
@@ -304,17 +305,9 @@ std::string OperatorPage::metrics_text() {
   task_counter("markcell_task_faults_total", "runs that reported a fault",
                [](const control::TaskStats& t) { return t.faults.load(); });
   family(out, "markcell_lane_wakeup_latency_seconds", "summary", "each lane's wake-up minus its scheduled release");
-  for (std::size_t l = 0; l < spec.lanes.size(); ++l) {
-    const std::string name = label(spec.lanes[l].name);
-    const control::Histogram& h = exec.lane_stats(static_cast<int>(l)).wake_latency;
-    for (const double q : {0.5, 0.99, 0.999})
-      append(out, "markcell_lane_wakeup_latency_seconds{lane=\"%s\",quantile=\"%g\"} %.9f\n", name.c_str(), q,
-             to_seconds(h.percentile(q)));
-    append(out, "markcell_lane_wakeup_latency_seconds_sum{lane=\"%s\"} %.9f\n", name.c_str(),
-           h.mean() * 1e-9 * static_cast<double>(h.count()));
-    append(out, "markcell_lane_wakeup_latency_seconds_count{lane=\"%s\"} %llu\n", name.c_str(),
-           static_cast<unsigned long long>(h.count()));
-  }
+  for (std::size_t l = 0; l < spec.lanes.size(); ++l)
+    summary("markcell_lane_wakeup_latency_seconds", "lane", label(spec.lanes[l].name),
+            exec.lane_stats(static_cast<int>(l)).wake_latency, {0.5, 0.99, 0.999});
   family(out, "markcell_lane_missed_ticks_total", "counter", "releases a lane skipped because it was late");
   for (std::size_t l = 0; l < spec.lanes.size(); ++l)
     append(out, "markcell_lane_missed_ticks_total{lane=\"%s\"} %llu\n", label(spec.lanes[l].name).c_str(),

@@ -258,6 +258,7 @@ std::vector<RecordEvent> RecordFolder::poll_by_id(const std::function<bool(const
         drop(i);
       } else {
         offering_ = unique_in("accepted", it->seen.name);
+        it->job->announced = wanted.counter;  // (the sequence answers it if the line moves on)
         if (offer(job)) {  // (false: the sequence still holds one; the next poll tries again)
           offered_counter_ = wanted.counter;
           events.push_back(accept(it->seen.name, job));

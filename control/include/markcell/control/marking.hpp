@@ -57,6 +57,10 @@ struct PanelJob {
     FixedVector<Eigen::Vector3d, kMaxDefectPoints> points_SL;  // its surface points
   };
   FixedVector<Defect, kMaxDefects> defects;
+  // Pairing by panel id: the line's arrival counter the record was offered for (0: none,
+  // records in order). The sequence answers it at once when the line has moved on to
+  // another panel, or when that announcement's panel went by without it.
+  std::uint32_t announced = 0;
 };
 
 enum class SkipReason : std::uint8_t {
@@ -378,8 +382,10 @@ class MarkingSequence {
   int next_placed() const;
   Nanos latest_start(Nanos now);
   void panel_without_record(Nanos now);
-  // `instead`: the line announced that panel (pairing by id) rather than the record's.
-  void record_without_panel(Nanos now, const msg::LineArrival* instead = nullptr);
+  // Why a record is answered without its panel: it waited record_expiry; the line
+  // announced another panel (`instead`); its panel went by before it came.
+  enum class Expiry : std::uint8_t { kWaited, kAnotherAnnounced, kPanelWentBy };
+  void record_without_panel(Nanos now, Expiry why = Expiry::kWaited, const msg::LineArrival* instead = nullptr);
   void take_job(Nanos now);
   void report_to_plc();
   void fail_panel(Nanos now, std::string_view reason, SkipReason skip);

@@ -145,15 +145,7 @@ def running(cell, work):
 
 
 def finish(cell, work, expect_rc=0):
-    try:
-        rc = cell.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        cell.kill()
-        fail("markcell run did not end")
-    log = (work / "run.log").read_text()
-    print(log)
-    if rc != expect_rc:
-        fail(f"markcell run exited {rc}, expected {expect_rc}")
+    log = operator_page_test.wait_cell(cell, work, expect_rc)
     results = [json.loads(l) for l in (work / "results.jsonl").read_text().splitlines()]
     return log, results
 

@@ -12,6 +12,7 @@
 
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
+#include "markcell/host/service_loop.hpp"
 #include "test_files.hpp"
 
 using namespace markcell;
@@ -532,6 +533,23 @@ TEST_CASE_METHOD(Fixture, "the line: records in order unless a panel-id source i
   m = messages(check(kValid + "line:\n  panel_id_source: opc-ua\n"));
   REQUIRE(m.size() == 1);
   CHECK(m[0].rfind(at(1, 20) + "line.panel_id_source: ", 0) == 0);
+}
+
+TEST_CASE("pairing in order is warned about only for a marking cell with a record folder and no panel-id source") {
+  CellConfig cfg;
+  control::TaskSpec marking;
+  marking.name = "marking";
+  cfg.executive.tasks.push_back(marking);
+  CHECK(pairing_warning(cfg).empty());  // no record folder: no records to pair
+  cfg.record_folder = "/var/lib/markcell/records";
+  CHECK(pairing_warning(cfg).rfind("line.panel_id_source is none: records pair with panels in the order they come, so a "
+                                   "panel taken off the line",
+                                   0) == 0);
+  cfg.line.panel_id_source = PanelIdSource::kModbus;
+  CHECK(pairing_warning(cfg).empty());
+  cfg.line.panel_id_source = PanelIdSource::kNone;
+  cfg.executive.tasks.clear();  // no marking task: nothing is sprayed
+  CHECK(pairing_warning(cfg).empty());
 }
 
 TEST_CASE_METHOD(Fixture, "the pose log: its folder resolved and required to exist, its rotation size in range") {

@@ -20,6 +20,8 @@ the cell's:
              result names it, the valve never opens
     silent   the PLC stops answering while the door is being marked: safe stop naming
              plc_link, exit 1, the panel's result a fault
+    absent   no PLC answers at the start: `markcell run` does not start (exit 1, the
+             reason), the record stays where it is
 """
 import asyncio
 import datetime
@@ -266,6 +268,18 @@ def main(argv):
             fail("a defect was sprayed: the PLC went silent about 1.2 s into the run, its first spray is due at about 2 s")
         if len(done) != 1 or not done[0]["fault"] or done[0]["reason"] != "safe stop during the marking sequence":
             fail(f"the panel's result: {done}")
+    elif case == "absent":
+        # No PLC answers at the start: the cell does not start, nothing is taken or moved.
+        plc.stop()
+        (work / "records" / "0001.yaml").write_text(record_with_id(recording, PANEL))
+        cell = run_cell(markcell, work, config, 4)
+        log = operator_page_test.wait_cell(cell, work, 1)
+        want = (f"markcell: start-up failed: the line's PLC: connect (Modbus TCP 127.0.0.1:{plc.port}, unit {UNIT}): "
+                "Connection refused")
+        if want not in log:
+            fail(f"the start-up failure does not say: {want}")
+        if "running on the real clock" in log or not (work / "records" / "0001.yaml").is_file():
+            fail("the cell started or took the record without its PLC")
     else:
         fail(f"unknown case {case}")
     print(f"line_plc {case}: passed")

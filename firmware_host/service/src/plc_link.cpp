@@ -1,7 +1,5 @@
 #include "markcell/host/plc_link.hpp"
 
-#include <algorithm>
-
 #include "markcell/host/operator_page.hpp"
 
 namespace markcell::host {

@@ -56,10 +56,10 @@ TEST_CASE("an unknown subcommand: the one meant, or the known ones, and exit 2")
                        Case{"repaly --config x", "markcell: unknown subcommand 'repaly'; did you mean replay?"},
                        Case{"sel", "markcell: unknown subcommand 'sel'; did you mean select-mfs?"},
                        Case{"bench rendr", "markcell: unknown subcommand 'bench rendr'; did you mean bench render?"},
-                       Case{"frobnicate", "markcell: unknown subcommand 'frobnicate' (known: check-config, config-schema, run, "
+                       Case{"frobnicate", "markcell: unknown subcommand 'frobnicate' (known: check-config, config-schema, run, publish-record, "
                                           "calibrate-stereo, calibrate-base, calibrations, record, capacity, select-mfs, bench, sim, "
                                           "replay)"},
-                       Case{"bench x", "markcell: unknown subcommand 'bench x' (known: loop, vision, render)"}}) {
+                       Case{"bench x", "markcell: unknown subcommand 'bench x' (known: loop, vision, render, broker)"}}) {
     const auto r = run_command(kMarkcell + " " + c.args);
     INFO(c.args << ": " << r.output);
     CHECK(r.exit_code == 2);

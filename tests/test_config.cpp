@@ -535,6 +535,47 @@ TEST_CASE_METHOD(Fixture, "the line: records in order unless a panel-id source i
   CHECK(m[0].rfind(at(1, 20) + "line.panel_id_source: ", 0) == 0);
 }
 
+TEST_CASE_METHOD(Fixture, "the broker: paths beside the configuration and its names and secrets checked") {
+  std::filesystem::create_directories(dir.path() / "records");
+  std::filesystem::create_directories(dir.path() / "secrets");
+  const std::string password = dir.write("secrets/mark-1.password", "s3cret\n");
+  std::filesystem::permissions(password, std::filesystem::perms::owner_read | std::filesystem::perms::owner_write);
+  const std::string ca = dir.write("secrets/ca.crt", "-----BEGIN CERTIFICATE-----\n");
+  const std::string with_folder = replace(kValid, "name: test-cell", "name: test-cell\n  record_folder: records");
+  const int line = static_cast<int>(std::count(with_folder.begin(), with_folder.end(), '\n')) + 1;  // `line:`
+  const auto at = [&](int l, int c) { return file() + ":" + std::to_string(line + l) + ":" + std::to_string(c) + ": "; };
+  const std::string broker = "line:\n  panel_id_source: broker\n  broker:\n    server: 10.0.0.2:8883\n    line: line-1\n"
+                             "    station: mark-1\n    username: mark-1\n    password_file: secrets/mark-1.password\n"
+                             "    ca_file: secrets/ca.crt\n";
+  const auto ok = load_config_text(with_folder + broker, file(), task_catalog());
+  CHECK(ok.line.panel_id_source == PanelIdSource::kBroker);
+  CHECK(ok.line.broker.password_file == password);
+  CHECK(ok.line.broker.ca_file == ca);
+  CHECK(ok.line.broker.keepalive == seconds(5));
+  CHECK(ok.line.broker.record_retain == seconds(600));
+  // A station name that is not a topic level, a password others can read, no record folder.
+  auto m = messages(check(with_folder + replace(broker, "station: mark-1", "station: mark/1")));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == at(5, 14) + "line.broker.station: 'mark/1': only letters, digits, - and _ (it is a topic level and the client id)");
+  std::filesystem::permissions(password, std::filesystem::perms::group_read | std::filesystem::perms::others_read,
+                               std::filesystem::perm_options::add);
+  m = messages(check(with_folder + broker));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == at(7, 20) + "line.broker.password_file: '" + password + "' can be read by others (mode 0644): chmod 600 it");
+  m = messages(check(with_folder + replace(broker, "secrets/ca.crt", "secrets/missing.crt")));
+  REQUIRE(m.size() == 2);  // (and the password's mode)
+  CHECK(m[1] == at(8, 14) + "line.broker.ca_file: '" + (dir.path() / "secrets/missing.crt").string() + "' is not a regular file");
+  const int plain = static_cast<int>(std::count(kValid.begin(), kValid.end(), '\n')) + 1;
+  m = messages(check(kValid + broker));
+  REQUIRE(m.size() == 2);
+  CHECK(m[1] == file() + ":" + std::to_string(plain + 3) +
+                    ":5: line.broker: a station on the broker keeps the records it receives in cell.record_folder until "
+                    "they are used: set it");
+  m = messages(check(with_folder + "line:\n  panel_id_source: broker\n"));
+  REQUIRE(m.size() == 1);
+  CHECK(m[0] == at(1, 3) + "line.broker: missing required key 'broker.server' (panel_id_source: broker): the broker's ADDRESS:PORT");
+}
+
 TEST_CASE("pairing in order is warned about only for a marking cell with a record folder and no panel-id source") {
   CellConfig cfg;
   control::TaskSpec marking;

@@ -205,6 +205,7 @@ TEST_CASE("the record drop folder: records taken in name order, bad ones and dup
   REQUIRE(ev.size() == 2);
   CHECK(ev[0].kind == host::RecordEvent::Kind::kRejected);
   CHECK(ev[0].reason.find("0003.yaml: panel_id: '" + offered[0] + "' was already received (a duplicate record)") != std::string::npos);
+  CHECK(ev[0].panel_id == offered[0]);  // (the rejected line names the panel it repeats)
   CHECK(read_file((drop / "rejected" / "0003.yaml.reason").string()) == ev[0].reason + "\n");
   CHECK(ev[1].kind == host::RecordEvent::Kind::kRejected);
   INFO(ev[1].reason);

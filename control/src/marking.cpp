@@ -117,7 +117,7 @@ void MarkingSequence::check_line_source(const TaskContext& ctx, Nanos now) noexc
     FixedString<119> detail;
     detail.format("the line's panel-id source has not answered for %lld ms (limit %lld ms)",
                   static_cast<long long>((now - heard) / millis(1)), static_cast<long long>(line_silent_ / millis(1)));
-    ctx.safe_stop().trigger(now, FaultCode::kDeviceFault, "plc_link", detail.view());
+    ctx.safe_stop().trigger(now, FaultCode::kDeviceFault, line_source_, detail.view());
   }
 }
 

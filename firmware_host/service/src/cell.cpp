@@ -343,7 +343,9 @@ Cell::Cell(const CellConfig& config, ClockKind clock)
     lines.fault = gpio_line(LineRole::kPlcFault);
     marking_ = std::make_unique<control::MarkingSequence>(mp, *arm_link_, *spray_valve_, *gpio_, lines, *plc_io_,
                                                           *estimates_, *tracker_requests_);
-    if (config.line.panel_id_source != PanelIdSource::kNone) marking_->use_line_arrivals(&line_arrivals_, config.line.silent);
+    if (config.line.panel_id_source != PanelIdSource::kNone)
+      marking_->use_line_arrivals(&line_arrivals_, config.line.silent,
+                                  config.line.panel_id_source == PanelIdSource::kBroker ? "broker_link" : "plc_link");
     if (!marking_->set_recipes(per_type))
       throw std::invalid_argument(config.file + ": " + std::to_string(per_type.size()) + " panel types, at most " +
                                   std::to_string(control::kMaxPanelTypes));

@@ -5,8 +5,10 @@
 #include <iostream>
 #include <memory>
 
+#include "markcell/common/bounded_file.hpp"
 #include "markcell/host/calibration_state.hpp"
 #include "markcell/host/command.hpp"
+#include "markcell/host/inspection_record.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/sim/plc_script.hpp"
 
@@ -141,6 +143,58 @@ void add_service_commands(CLI::App& app, Commands& out, const sigset_t& stop_sig
                    return run_command(o->run_file, o->clock_name, o->run_seconds, o->run_plc_script, stop_signals);
                  },
                  true});
+
+  struct PublishOptions {
+    std::string config;
+    std::vector<std::string> records;
+  };
+  const auto p = std::make_shared<PublishOptions>();
+  auto* publish = app.add_subcommand(
+      "publish-record",
+      "The inspection station's side of the broker: publish inspection records (the drop folder's files), each retained "
+      "on its panel's topic (docs/line.md)");
+  publish->add_option("--config,-c", p->config, "The station's configuration (its line.broker and panel_types)")->required();
+  publish->add_option("RECORD", p->records, "Inspection record files (vision/RECORDING.md, inspection.yaml)")->required();
+  out.push_back({publish, [p] {
+                   return with_config(p->config, [&](const CellConfig& config) {
+                     if (config.line.broker.server.empty()) {
+                       std::cerr << "markcell publish-record: " << config.file << ": line.broker is not configured\n";
+                       return kExitConfig;
+                     }
+                     // Every record read and validated before the first is published.
+                     std::vector<std::pair<std::string, std::string>> texts;
+                     for (const std::string& path : p->records) {
+                       try {
+                         std::string text = read_bounded_file(path, BrokerLink::kMaxPayloadBytes, "an inspection record");
+                         (void)parse_inspection_record(text, path, config.panel_types);
+                         if (!ends_with_end_marker(text))
+                           throw RecordInvalid(path + ": its last line is not YAML's end-of-document marker '...'");
+                         texts.emplace_back(path, std::move(text));
+                       } catch (const std::exception& e) {
+                         std::cerr << "markcell publish-record: " << e.what() << "\n";
+                         return kExitConfig;
+                       }
+                     }
+                     try {
+                       BrokerLink link(config.line.broker, BrokerLink::Role::kInspection, config.record_folder,
+                                       config.panel_types, nullptr, [](void*) { return monotonic_now(); }, nullptr);
+                       link.connect();
+                       link.publish_state("online", "publishing " + std::to_string(texts.size()) + " record(s)", "");
+                       for (const auto& [path, text] : texts) {
+                         if (!link.publish_record(text, path, config.line.broker.connect_timeout))
+                           throw std::runtime_error(path + ": not acknowledged by the broker: " +
+                                                    (link.error().empty() ? "no answer" : link.error()));
+                         std::cout << "published " << path << " (retained "
+                                   << config.line.broker.record_retain / seconds(1) << " s)\n";
+                       }
+                       link.stop("published " + std::to_string(texts.size()) + " record(s)");
+                     } catch (const std::exception& e) {
+                       std::cerr << "markcell publish-record: the broker: " << e.what() << "\n";
+                       return kExitRuntime;
+                     }
+                     return 0;
+                   });
+                 }});
 }
 
 }  // namespace markcell::host

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <concepts>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -11,6 +12,8 @@
 #include <limits>
 #include <optional>
 #include <sstream>
+
+#include <sys/stat.h>
 
 #include "markcell/common/bounded_file.hpp"
 #include "markcell/common/param.hpp"
@@ -53,6 +56,12 @@ std::string_view to_string(ArmSafeAction a) { return a == ArmSafeAction::kHome ?
 namespace {
 
 namespace fs = std::filesystem;
+
+std::string octal_mode(mode_t mode) {  // 0644
+  std::string m = "0000";
+  for (int i = 3; i >= 0; --i, mode >>= 3) m[static_cast<std::size_t>(i)] = static_cast<char>('0' + (mode & 7));
+  return m;
+}
 
 std::string node_kind(const YAML::Node& n) {
   switch (n.Type()) {
@@ -858,6 +867,34 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
     const YAML::Node& line = *l;
     if (!cfg.line.modbus.server.empty() && !parse_listen_address(cfg.line.modbus.server, address, port, error))
       r.error(line["modbus"]["server"], "line.modbus.server", error);
+    BrokerConfig& b = cfg.line.broker;
+    if (!b.server.empty()) {
+      const YAML::Node broker = line["broker"];
+      if (!parse_listen_address(b.server, address, port, error)) r.error(broker["server"], "line.broker.server", error);
+      // Topic levels and a client id: no wildcards, no separators, nothing to escape.
+      for (auto [key, value] : {std::pair<const char*, const std::string*>{"line", &b.line}, {"station", &b.station}})
+        if (std::any_of(value->begin(), value->end(), [](char c) {
+              return !(std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_');
+            }))
+          r.error(broker[key], std::string("line.broker.") + key,
+                  "'" + *value + "': only letters, digits, - and _ (it is a topic level and the client id)");
+      // The secrets beside the configuration: regular files (the password's is read at start).
+      for (auto [key, value] : {std::pair<const char*, std::string*>{"password_file", &b.password_file}, {"ca_file", &b.ca_file}}) {
+        if (value->empty()) continue;
+        std::filesystem::path p(*value);
+        if (p.is_relative()) p = std::filesystem::path(path).parent_path() / p;
+        *value = p.lexically_normal().string();
+        struct stat st{};
+        if (::stat(value->c_str(), &st) != 0 || !S_ISREG(st.st_mode))
+          r.error(broker[key], std::string("line.broker.") + key, "'" + *value + "' is not a regular file");
+        else if (std::string_view(key) == "password_file" && (st.st_mode & 077) != 0)
+          r.error(broker[key], "line.broker.password_file",
+                  "'" + *value + "' can be read by others (mode " + octal_mode(st.st_mode) + "): chmod 600 it");
+      }
+      if (cfg.record_folder.empty())
+        r.error(broker, "line.broker",
+                "a station on the broker keeps the records it receives in cell.record_folder until they are used: set it");
+    }
   }
 
   // Simulated devices are advanced by the sim_world task: one without the other is a

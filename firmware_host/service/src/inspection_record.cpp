@@ -130,6 +130,14 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
   return job;
 }
 
+bool ends_with_end_marker(std::string_view text) {
+  std::size_t end = text.size();
+  while (end > 0 && (text[end - 1] == '\n' || text[end - 1] == '\r' || text[end - 1] == ' ')) --end;
+  const std::size_t begin = text.rfind('\n', end == 0 ? 0 : end - 1);
+  const std::size_t from = begin == std::string_view::npos ? 0 : begin + 1;
+  return end >= from + 3 && text.compare(from, end - from, "...") == 0;
+}
+
 std::string panel_id_problem(std::string_view id) {
   if (id.empty()) return "empty";
   if (id.size() > 63) return "longer than 63 characters";

@@ -14,17 +14,6 @@ namespace markcell::host {
 
 namespace fs = std::filesystem;
 
-namespace {
-// YAML's end-of-document marker on the last line: the writer got to the end.
-bool ends_with_marker(const std::string& text) {
-  std::size_t end = text.size();
-  while (end > 0 && (text[end - 1] == '\n' || text[end - 1] == '\r' || text[end - 1] == ' ')) --end;
-  const std::size_t begin = text.rfind('\n', end == 0 ? 0 : end - 1);
-  const std::size_t from = begin == std::string::npos ? 0 : begin + 1;
-  return end >= from + 3 && text.compare(from, end - from, "...") == 0;
-}
-}  // namespace
-
 RecordFolder::RecordFolder(std::string folder, std::vector<PanelTypeConfig> panel_types, Nanos incomplete_wait)
     : folder_(std::move(folder)), panel_types_(std::move(panel_types)), incomplete_wait_(incomplete_wait) {
   if (!fs::is_directory(folder_)) throw std::runtime_error("record folder '" + folder_ + "' does not exist");
@@ -106,7 +95,7 @@ RecordFolder::Read RecordFolder::read(const std::string& name, Seen& cur, Nanos 
     events.push_back(reject(name, e.what()));
     return Read::kRejected;
   }
-  if (!ends_with_marker(text)) {
+  if (!ends_with_end_marker(text)) {
     if (cur.first_stable < 0) cur.first_stable = now;
     if (now - cur.first_stable < incomplete_wait_) return Read::kWait;  // still being written, perhaps
     events.push_back(reject(name, path + ": incomplete: its last line is not YAML's end-of-document marker '...' (written in "
@@ -117,8 +106,11 @@ RecordFolder::Read RecordFolder::read(const std::string& name, Seen& cur, Nanos 
     job = parse_inspection_record(text, path, panel_types_);
     const std::string id(job.panel_id.view());
     if (std::find(recent_ids_.begin(), recent_ids_.end(), id) != recent_ids_.end() ||
-        std::find(also_taken.begin(), also_taken.end(), id) != also_taken.end())
-      throw RecordInvalid(path + ": panel_id: '" + id + "' was already received (a duplicate record)");
+        std::find(also_taken.begin(), also_taken.end(), id) != also_taken.end()) {
+      // (its id in the rejected line: the results file then names the panel it repeats)
+      events.push_back(reject(name, path + ": panel_id: '" + id + "' was already received (a duplicate record)", id));
+      return Read::kRejected;
+    }
   } catch (const RecordInvalid& e) {
     events.push_back(reject(name, e.what()));
     return Read::kRejected;

@@ -114,6 +114,7 @@ void ResultsFile::append(const std::string& line) {
     done += static_cast<std::size_t>(n);
   }
   if (::fdatasync(fd_) != 0) take_back("syncing a result failed");
+  if (mirror_) mirror_(line);
 }
 
 std::string ResultsFile::accepted_json(const std::string& cell, const std::string& utc, const std::string& record,

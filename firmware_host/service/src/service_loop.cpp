@@ -33,10 +33,12 @@ void print_faults(control::FaultLog& log) {
 }  // namespace
 
 void close_interrupted(ResultsFile& results, const std::string& cell, const std::string& utc, RecordFolder* records,
-                       const Journal& journal) {
+                       const Journal& journal, BrokerLink* broker) {
   const ResultsFile::History h = results.history();
   if (records != nullptr)
     for (const auto& id : h.panel_ids) records->remember(id);
+  if (broker != nullptr)
+    for (const auto& id : h.panel_ids) broker->answered(id);
   for (const auto& id : h.unfinished) {
     results.append(ResultsFile::interrupted_json(cell, utc, id));
     journal.log(3,
@@ -54,7 +56,7 @@ std::string pairing_warning(const CellConfig& config) {
   return "line.panel_id_source is none: records pair with panels in the order they come, so a panel taken off the line "
          "between the inspection station and this cell shifts every later pairing by one and the next panel of the same "
          "type is marked with its predecessor's defects (the inter-calibration catches only another panel type); set "
-         "line.panel_id_source: modbus (docs/line.md)";
+         "line.panel_id_source: modbus or broker (docs/line.md)";
 }
 
 ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions options)
@@ -63,7 +65,26 @@ ServiceLoop::ServiceLoop(const CellConfig& config, Cell& cell, ServiceOptions op
   if (!config.results_file.empty() && cell.marking() != nullptr) results_ = std::make_unique<ResultsFile>(config.results_file);
   if (!config.record_folder.empty() && cell.marking() != nullptr)
     records_ = std::make_unique<RecordFolder>(config.record_folder, config.panel_types);
-  if (results_) close_interrupted(*results_, config.name, utc_.at(now()), records_.get(), journal_);
+  if (!config.line.broker.server.empty() && cell.marking() != nullptr && records_) {
+    // Records through the broker, kept in the record folder until used (docs/line.md).
+    broker_ = std::make_unique<BrokerLink>(
+        config.line.broker, BrokerLink::Role::kMarking, config.record_folder, config.panel_types,
+        config.line.panel_id_source == PanelIdSource::kBroker ? &cell.line_arrivals() : nullptr,
+        [](void* self) { return static_cast<ServiceLoop*>(self)->now(); }, this);
+  }
+  if (results_) close_interrupted(*results_, config.name, utc_.at(now()), records_.get(), journal_, broker_.get());
+  if (broker_) {
+    // The broker must accept this station before anything moves: records come through it.
+    try {
+      broker_->connect();
+    } catch (const std::exception& e) {
+      throw std::runtime_error("the broker: " + std::string(e.what()));
+    }
+    broker_->publish_state("online", "starting", utc_.at(now()));
+    if (results_) results_->mirror_to([this](const std::string& line) {
+        if (broker_) broker_->publish_result(line);
+      });
+  }
   if (config.line.panel_id_source == PanelIdSource::kModbus && cell.marking() != nullptr) {
     // The PLC must answer before anything moves: a cell that cannot tell panels apart
     // does not start (systemd retries).
@@ -193,6 +214,7 @@ void ServiceLoop::take_records(Nanos now) {
       // The accepted line is on disk before the panel can start, so a crash from here
       // on leaves a trace the next start answers (close_interrupted).
       if (!cell_.marking()->can_offer()) return false;
+      if (broker_) broker_->answered(std::string(job.panel_id.view()));  // (before the file leaves the folder)
       if (results_)
         results_->append(
             ResultsFile::accepted_json(config_.name, utc_.at(now), records_->offering(), std::string(job.panel_id.view())));
@@ -200,7 +222,7 @@ void ServiceLoop::take_records(Nanos now) {
     };
     // Pairing by id: the record of the panel the line announced (nothing while its
     // block is not valid); else in order.
-    if (line_)
+    if (line_ || config_.line.panel_id_source == PanelIdSource::kBroker)
       events = records_->poll_by_id(offer, line_word_.valid ? line_word_.arrival : msg::LineArrival{},
                                     config_.marking.record_expiry, now);
     else
@@ -211,6 +233,7 @@ void ServiceLoop::take_records(Nanos now) {
     return;
   }
   for (const RecordEvent& ev : events) {
+    if (broker_ && !ev.panel_id.empty()) broker_->answered(ev.panel_id);  // (a redelivery of it is dropped)
     if (page_) page_->update([&](OperatorState& s) { ++(ev.kind == RecordEvent::Kind::kAccepted ? s.records_accepted : s.records_rejected); });
     if (ev.kind == RecordEvent::Kind::kAccepted) {
       log(6, format("markcell: record panel=%s accepted (%s)", escape_log(ev.panel_id).c_str(), escape_log(ev.file).c_str()),
@@ -241,10 +264,19 @@ void ServiceLoop::apply_plc_events(Nanos elapsed) {
 }
 
 void ServiceLoop::watch_line() {
-  if (!line_) return;
-  if (cell_.sim_clock() != nullptr) line_->poll();  // (the real clock: its own thread polls)
-  LineWord w = line_->word();
-  const std::string peer = line_->peer();
+  LineWord w;
+  std::string peer;
+  if (line_) {
+    if (cell_.sim_clock() != nullptr) line_->poll();  // (the real clock: its own thread polls)
+    w = line_->word();
+    peer = line_->peer();
+  } else if (broker_ && config_.line.panel_id_source == PanelIdSource::kBroker) {
+    w = broker_->word();  // (the connection's losses are watch_broker's)
+    if (w.valid) w.error.clear();
+    peer = broker_->peer();
+  } else {
+    return;
+  }
   if (!w.error.empty() && w.error != line_word_.error) {
     if (!w.valid)
       log(3, "markcell: line: the PLC's block is not valid, nothing announced: " + escape_log(w.error),
@@ -263,6 +295,50 @@ void ServiceLoop::watch_line() {
         {{"PANEL_ID", id}, {"PANEL_TYPE", type}, {"LINE_ARRIVAL", n}});
   }
   line_word_ = std::move(w);
+}
+
+void ServiceLoop::watch_broker() {
+  if (!broker_) return;
+  if (cell_.sim_clock() != nullptr) broker_->poll();  // (the real clock: its own thread)
+  const std::string error = broker_->error();
+  const bool down = !broker_->word().error.empty() && !error.empty();
+  if (down && !broker_down_)
+    log(3, "markcell: broker: " + escape_log(error) + " (records wait at the broker; retrying)", {{"BROKER_ERROR", error}});
+  if (!down && broker_down_) log(6, "markcell: broker: connected again to " + broker_->peer());
+  broker_down_ = down;
+  std::string last_reason;
+  for (const BrokerEvent& ev : broker_->take_events()) {
+    log(3, format("markcell: record rejected: %s%s", escape_log(ev.reason).c_str(),
+                  ev.file.empty() ? "" : (" (saved to " + escape_log(ev.file) + ")").c_str()),
+        {{"PANEL_ID", ev.panel_id}, {"RECORD_TOPIC", ev.topic}, {"REJECT_REASON", ev.reason}});
+    if (page_) page_->update([&](OperatorState& s) { ++s.records_rejected; });
+    if (results_) {
+      try {
+        results_->append(ResultsFile::rejected_json(config_.name, utc_.at(now()), ev.file.empty() ? ev.topic : ev.file,
+                                                    ev.panel_id, ev.reason));
+      } catch (const std::exception& e) {
+        log(3, "markcell: " + escape_log(e.what()));
+      }
+    }
+    last_reason = "record rejected: " + ev.reason;
+  }
+  // The station's state for the line: fault (with the safe stop's reason), marking (a
+  // panel in hand) or ready; a rejected message is said on it with the state as it is.
+  const control::SafeStop& stop = cell_.safe_stop();
+  const control::MarkingSequence* m = cell_.marking();
+  std::string state = "ready", reason = last_reason;
+  if (stop.done()) {
+    state = "fault";
+    const control::Fault& why = stop.reason();
+    reason = std::string(control::to_string(why.code)) + " from " + std::string(why.source.view()) + ": " +
+             std::string(why.detail.view());
+  } else if (m != nullptr && m->state() != control::MarkingState::kIdle) {
+    state = "marking";
+  }
+  if (!last_reason.empty() || state != broker_state_) {
+    broker_->publish_state(state, reason, utc_.at(now()));
+    broker_state_ = state;
+  }
 }
 
 void ServiceLoop::log(int priority, std::string_view text, std::initializer_list<JournalField> fields) const {
@@ -359,6 +435,7 @@ LoopEnd ServiceLoop::supervise_steps(const StopWait& wait) {
     collect();
     log_faults();
     watch_line();
+    watch_broker();
     take_records(now());
     write_poses();
     if (options_.on_step) options_.on_step(t);
@@ -380,6 +457,15 @@ void ServiceLoop::start() {
     if (!simulated) line_->start_thread();
     log(6, format("markcell: line: records pair with panels by the id the PLC at %s announces (Modbus TCP, unit %d)",
                   line_->peer().c_str(), config_.line.modbus.unit_id));
+  }
+  if (broker_) {
+    if (!simulated) broker_->start_thread();
+    log(6, format("markcell: broker: station %s on line %s at %s (TLS, user %s): records on %s%s",
+                  config_.line.broker.station.c_str(), config_.line.broker.line.c_str(), broker_->peer().c_str(),
+                  escape_log(config_.line.broker.username).c_str(), broker_->topics().records.c_str(),
+                  config_.line.panel_id_source == PanelIdSource::kBroker
+                      ? (", arrivals on " + broker_->topics().arrival).c_str()
+                      : ""));
   }
   if (page_) {
     page_->start();
@@ -463,6 +549,7 @@ int ServiceLoop::run(const sigset_t& signals) {
       log(3, "markcell: " + escape_log(e.what()));
     }
   }
+  if (broker_) broker_->stop(stop_reason);  // its last state: offline, with the reason
   log(6, "markcell: stopped (" + stop_reason + ")");
   std::cout << "\ntiming report (" << (simulated ? "simulated" : "real") << " clock):\n" << cell_.executive().timing_report();
   print_faults(cell_.faults());

@@ -264,6 +264,7 @@ void add_tool_commands(CLI::App& app, Commands& out) {
     LoopBenchOptions loop;
     VisionBenchOptions vision;
     RenderBenchOptions render;
+    BrokerBenchOptions broker;
   };
   const auto o = std::make_shared<Options>();
 
@@ -380,6 +381,31 @@ void add_tool_commands(CLI::App& app, Commands& out) {
                      return bench_render(config, o->render);
                    });
                  }});
+  auto* broker_bench = bench->add_subcommand(
+      "broker", "The stations' broker under load: lines of 1 inspection + M marking stations as processes, one mosquitto");
+  broker_bench->add_option("--config,-c", o->bench_config, std::string("Cell configuration (its panel types)") + kDefaultConfigHelp);
+  broker_bench->add_option("--records", o->broker.records, "Records in all")->check(CLI::Range(1, 1'000'000));
+  broker_bench->add_option("--lines", o->broker.lines, "Lines")->check(CLI::Range(1, 20));
+  broker_bench->add_option("--marking", o->broker.marking_per_line, "Marking stations per line")->check(CLI::Range(1, 10));
+  broker_bench->add_option("--rate", o->broker.rate_per_station, "Records a second from each inspection station")
+      ->check(CLI::Range(1.0, 100000.0));
+  broker_bench->add_option("--json", o->broker.json_path, "Write the results as JSON to this file");
+  broker_bench->add_option("--work", o->broker.work, "The bench's folder (default: a fresh one under /tmp)");
+  broker_bench->add_flag("--keep", o->broker.keep, "Keep the bench's folder (logs, results files)");
+  for (auto* opt : {broker_bench->add_option("--station-role", o->broker.station_role),
+                    broker_bench->add_option("--station-line", o->broker.station_line),
+                    broker_bench->add_option("--station-name", o->broker.station_name),
+                    broker_bench->add_option("--port", o->broker.port),
+                    broker_bench->add_option("--station-count", o->broker.station_count)})
+    opt->group("");  // (the bench's own station processes)
+  out.push_back({broker_bench,
+                 [o] {
+                   o->broker.config_file = o->bench_config;
+                   return with_config(o->bench_config, [&](const CellConfig& config) {
+                     return bench_broker(config, o->broker);
+                   });
+                 },
+                 true});
 }
 
 }  // namespace markcell::host

@@ -323,10 +323,12 @@ class MarkingSequence {
   // counter); a record for another id is answered as one whose panel never came; a
   // panel without its record goes by unmarked with the announced id in its result. No
   // word from the source for `silent`: safe stop (the cell can no longer tell panels
-  // apart). Null (the default): records pair with panels in order.
-  void use_line_arrivals(TripleBuffer<msg::LineArrival>* arrivals, Nanos silent) {
+  // apart; the fault's source is `source`, a literal). Null (the default): records pair
+  // with panels in order.
+  void use_line_arrivals(TripleBuffer<msg::LineArrival>* arrivals, Nanos silent, const char* source = "plc_link") {
     arrivals_ = arrivals;
     line_silent_ = silent;
+    line_source_ = source;
   }
   TaskResult step(const TaskContext& ctx) noexcept;
   static TaskResult task(TaskContext& ctx, void* self) { return static_cast<MarkingSequence*>(self)->step(ctx); }
@@ -446,6 +448,7 @@ class MarkingSequence {
   // counter), and when the sequence first ran (the source's silence counts from then).
   TripleBuffer<msg::LineArrival>* arrivals_ = nullptr;
   Nanos line_silent_ = seconds(1);
+  const char* line_source_ = "plc_link";
   std::uint32_t arrival_used_ = 0;
   Nanos first_step_ = -1;
   // The newest announcement is fresh (not used by a panel yet) and names the waiting job.

@@ -343,7 +343,7 @@ struct BaseCalibrationConfig {
 
 // `line`: where the marking station learns which panel comes next (docs/line.md). With
 // no source, records pair with panels in the order they come (check-config warns).
-enum class PanelIdSource : std::uint8_t { kNone, kModbus };
+enum class PanelIdSource : std::uint8_t { kNone, kModbus, kBroker };
 
 // `line.modbus`: the line's PLC as a Modbus TCP server (the register map: docs/line.md).
 struct ModbusLinkConfig {
@@ -372,18 +372,61 @@ struct ModbusLinkConfig {
   }
 };
 
+// `line.broker`: the stations' MQTT broker (topics and delivery: docs/line.md). A marking
+// station receives its line's records through it (kept in cell.record_folder until used)
+// and publishes its state and results; an inspection station publishes records.
+struct BrokerConfig {
+  std::string server;         // ADDRESS:PORT (IPv4); empty: no broker
+  std::string line;           // the topics' line level: markcell/<line>/...
+  std::string station;        // this station's level and its MQTT client id
+  std::string username;       // the station's user at the broker
+  std::string password_file;  // absolute (resolved against the config's folder); its first line is the password
+  std::string ca_file;        // absolute; the broker's certificate must be signed by it (TLS)
+  Nanos keepalive = seconds(5);
+  Nanos connect_timeout = seconds(5);
+  Nanos record_retain = seconds(600);  // an inspection station's record stays retained this long
+
+  template <class V>
+  void Visit(V& v) {
+    v(Param{"server", Unit::kNone, 1, 64, "the broker, ADDRESS:PORT (IPv4; its TLS certificate names ADDRESS)", true}, server);
+    v(Param{"line", Unit::kNone, 1, 32, "the line's name in the topics (letters, digits, - and _)", true}, line);
+    v(Param{"station", Unit::kNone, 1, 32, "this station's name in the topics and its client id (letters, digits, - and _)",
+            true},
+      station);
+    v(Param{"username", Unit::kNone, 1, 64, "the station's user at the broker", true}, username);
+    v(Param{"password_file", Unit::kNone, 1, 4096, "a file (mode 0600 or 0400) whose first line is the password", true},
+      password_file);
+    v(Param{"ca_file", Unit::kNone, 1, 4096, "the CA certificate (PEM) that signed the broker's certificate", true},
+      ca_file);
+    v(Param{"keepalive_s", Unit::kSecond, 5, 60, "the broker declares the station gone (last will) after 1.5 times this"},
+      keepalive);
+    v(Param{"connect_timeout_s", Unit::kSecond, 1, 60, "the broker's answer to a connect awaited this long"},
+      connect_timeout);
+    v(Param{"record_retain_s", Unit::kSecond, 10, 86'400,
+            "inspection: a record stays retained this long (a marking station restarting within it gets it again)"},
+      record_retain);
+  }
+};
+
 struct LineConfig {
   PanelIdSource panel_id_source = PanelIdSource::kNone;
   ModbusLinkConfig modbus;
+  BrokerConfig broker;
   Nanos silent = seconds(1);
 
   template <class V>
   void Visit(V& v) {
-    v(Param{"panel_id_source", Unit::kNone, 0, 0, "none (records pair with panels in order) | modbus (the PLC says which)"},
-      Choice<PanelIdSource, 2>{panel_id_source, {{{"none", PanelIdSource::kNone}, {"modbus", PanelIdSource::kModbus}}}});
+    v(Param{"panel_id_source", Unit::kNone, 0, 0,
+            "none (records pair with panels in order) | modbus (the PLC says which) | broker (arrival messages)"},
+      Choice<PanelIdSource, 3>{panel_id_source,
+                               {{{"none", PanelIdSource::kNone},
+                                 {"modbus", PanelIdSource::kModbus},
+                                 {"broker", PanelIdSource::kBroker}}}});
     v(Param{"silent_ms", Unit::kMillisecond, 50, 60'000, "the panel-id source unanswered this long: safe stop"}, silent);
     v(Param{"modbus", Unit::kNone, 0, 0, "the PLC over Modbus TCP (required with panel_id_source: modbus)"},
       Section<ModbusLinkConfig>{modbus});
+    v(Param{"broker", Unit::kNone, 0, 0, "the stations' MQTT broker (records, arrivals, state, results)"},
+      Section<BrokerConfig>{broker});
   }
   template <class Report>
   void validate(Report&& report) const {
@@ -392,6 +435,8 @@ struct LineConfig {
     if (panel_id_source == PanelIdSource::kModbus && silent < 3 * modbus.poll)
       report("silent_ms", "silent_ms " + std::to_string(silent / millis(1)) + " must be at least three polls (modbus.poll_ms " +
                               std::to_string(modbus.poll / millis(1)) + ")");
+    if (panel_id_source == PanelIdSource::kBroker && broker.server.empty())
+      report("broker", "missing required key 'broker.server' (panel_id_source: broker): the broker's ADDRESS:PORT");
   }
 };
 

@@ -26,6 +26,9 @@ inline constexpr std::size_t kMaxInspectionRecordBytes = 1 << 20;
 // file names as it is).
 std::string panel_id_problem(std::string_view id);
 
+// A record's last line is YAML's end-of-document marker `...`: its writer got to the end.
+bool ends_with_end_marker(std::string_view text);
+
 control::PanelJob read_inspection_record(const std::string& path, const std::vector<PanelTypeConfig>& panel_types);
 control::PanelJob parse_inspection_record(const std::string& text, const std::string& path,
                                           const std::vector<PanelTypeConfig>& panel_types);

@@ -12,6 +12,7 @@
 // removed or replaced by something else is a fault, not a silent write into a deleted
 // inode; one rotated away (a new regular file at the path) is reopened.
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -35,6 +36,8 @@ class ResultsFile {
   // the inode check in append would find anyway).
   void reopen();
   const std::string& path() const { return path_; }
+  // Called with each line once it is on disk (the broker's result topic: the same lines).
+  void mirror_to(std::function<void(const std::string&)> mirror) { mirror_ = std::move(mirror); }
 
   // The panel's times in the cell's seconds (started_s, finished_s, spray_s) and, by
   // `utc`, in UTC (started_utc, finished_utc, spray_utc).
@@ -65,6 +68,7 @@ class ResultsFile {
   History history() const;
 
  private:
+  std::function<void(const std::string&)> mirror_;
   void open_file();
   void check_still_there();
   void end_torn_line();

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "markcell/common/time.hpp"
+#include "markcell/host/broker_link.hpp"
 #include "markcell/host/cell.hpp"
 #include "markcell/host/config.hpp"
 #include "markcell/host/exit_codes.hpp"
@@ -73,7 +74,7 @@ using StopWait = std::function<int(Nanos timeout)>;
 // now, so no accepted panel is without one; the ids seen are duplicates from now on.
 // `utc`: when (docs/operation.md "Time").
 void close_interrupted(ResultsFile& results, const std::string& cell, const std::string& utc, RecordFolder* records,
-                       const Journal& journal);
+                       const Journal& journal, BrokerLink* broker = nullptr);
 
 // What pairing records by order risks, when the configuration has a marking task, a
 // record folder and no panel-id source (check-config and run warn); empty otherwise.
@@ -111,6 +112,7 @@ class ServiceLoop {
   const PoseLog* pose_log() const { return pose_log_.get(); }
   OperatorPage* operator_page() { return page_.get(); }
   PlcLink* plc_link() { return line_.get(); }
+  BrokerLink* broker_link() { return broker_.get(); }
   Nanos elapsed() const;                  // since the loop's start
 
  private:
@@ -122,6 +124,10 @@ class ServiceLoop {
   // each announcement, a PLC that stops or starts answering and a block that is not
   // valid logged once.
   void watch_line();
+  // The broker: one pass of its network (the simulated clock), the messages it rejected
+  // logged and appended as rejected records, the connection's changes logged, the
+  // station's state published when it changes.
+  void watch_broker();
   // SIGHUP (systemctl reload): the panel types' recipes from the configuration file as it
   // is now, for the panels whose record is taken from now on, and the results file
   // reopened. A file that is not valid now, or whose panel types changed, changes
@@ -143,6 +149,9 @@ class ServiceLoop {
   std::unique_ptr<PoseLog> pose_log_;
   std::unique_ptr<OperatorPage> page_;
   std::unique_ptr<PlcLink> line_;  // the panel-id source (line.panel_id_source: modbus)
+  std::unique_ptr<BrokerLink> broker_;  // the stations' broker (line.broker)
+  bool broker_down_ = false;
+  std::string broker_state_;  // the state last published
   LineWord line_word_;             // as the last step saw it
   bool line_failing_ = false;
   std::uint64_t poses_dropped_seen_ = 0, poses_failed_seen_ = 0;

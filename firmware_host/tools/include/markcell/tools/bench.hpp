@@ -34,4 +34,26 @@ struct RenderBenchOptions {
 };
 int bench_render(const CellConfig& config, const RenderBenchOptions& options);
 
+// `markcell bench broker`: one mosquitto, `lines` lines of one inspection station and
+// `marking_per_line` marking stations, each a process; `records` records in all; the
+// latency from publish to the accepted line synced, and lost and duplicated deliveries.
+struct BrokerBenchOptions {
+  int records = 10'000;
+  int lines = 3;
+  int marking_per_line = 2;
+  double rate_per_station = 100;  // records a second from each inspection station
+  int drain_seconds = 60;         // after the last publish, the marking stations' time to take the rest
+  std::string json_path;
+  std::string work;               // the bench's folder (default: a fresh one under /tmp, removed after)
+  bool keep = false;
+  std::string config_file;        // passed on to the stations
+  // The hidden station mode (the bench runs itself once per station).
+  std::string station_role;       // marking | inspection
+  int station_line = 0;
+  std::string station_name;
+  int port = 0;
+  int station_count = 0;          // records this station publishes or expects
+};
+int bench_broker(const CellConfig& config, const BrokerBenchOptions& options);
+
 }  // namespace markcell::host

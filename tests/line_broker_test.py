@@ -151,7 +151,13 @@ class Client:
         if tls:
             self.c.tls_set(ca_certs=str(broker.dir / "ca.crt"))
         self.c.username_pw_set(user, USERS.get(user) if password is None else password)
-        self.c.on_message = lambda c, u, m: self.messages.append((m.topic, m.payload.decode("utf-8", "replace"), m.retain))
+        self.schemas = {}  # topic -> the MQTT 5 user property "schema" of its last message
+
+        def on_message(c, u, m):
+            self.messages.append((m.topic, m.payload.decode("utf-8", "replace"), m.retain))
+            user = dict(getattr(m.properties, "UserProperty", []) or [])
+            self.schemas[m.topic] = user.get("schema")
+        self.c.on_message = on_message
         self.c.on_connect = lambda c, u, f, rc, p=None: setattr(self, "connected", rc)
         self.granted = []
         self.c.on_subscribe = lambda c, u, mid, rcs, p=None: self.granted.extend(rcs)
@@ -409,6 +415,9 @@ def main(argv):
             wait_for("every results line on the result topic", lambda: len(results_on_topic(plant)) >= len(lines), 10)
             if results_on_topic(plant) != lines:
                 fail(f"the result topic {results_on_topic(plant)} is not the results file {lines}")
+            for topic in (f"markcell/{LINE}/mark-1/result", f"markcell/{LINE}/mark-1/state"):
+                if plant.schemas.get(topic) != "1":
+                    fail(f"{topic}: user property schema {plant.schemas.get(topic)!r}, expected '1'")
             if not results[0].get("accepted"):
                 fail(f"the first result line is not the record's acceptance: {results[:1]}")
             seen = [s["state"] for s in states(plant)]
@@ -449,6 +458,14 @@ def main(argv):
             }
             for level, (payload, _) in bad.items():
                 insp.publish(f"markcell/{LINE}/insp-1/record/{level}", payload, retain=True)
+            # A record of a format version this station does not read (MQTT 5 user property).
+            from paho.mqtt.packettypes import PacketTypes
+            from paho.mqtt.properties import Properties
+            props = Properties(PacketTypes.PUBLISH)
+            props.UserProperty = ("schema", "2")
+            insp.c.publish(f"markcell/{LINE}/insp-1/record/v2-1", record_with_id(recording, "v2-1"), qos=1, retain=True,
+                           properties=props).wait_for_publish(10)
+            bad["v2-1"] = ("", "schema '2' is not one this station reads (1)")
             insp.close()
             publish_record(markcell, inspection, door_record)
             log, results = marked_door()
@@ -458,12 +475,12 @@ def main(argv):
                 if len(hits) != 1:
                     fail(f"the message on record/{level} was not rejected once with '{why}': {rejected}")
             saved = sorted(p.name for p in (work / "records" / "rejected").glob("mqtt-*.yaml"))
-            if len(saved) != 3:
-                fail(f"rejected/ holds {saved}: expected the three payloads under the size limit")
+            if len(saved) != 4:
+                fail(f"rejected/ holds {saved}: expected the four payloads under the size limit")
             said = [s["reason"] for s in states(plant) if s["reason"].startswith("record rejected: ")]
             if len(said) < 1:
                 fail(f"no rejection was said on the station's state: {states(plant)}")
-            if log.count("markcell: record rejected: ") != 4:
+            if log.count("markcell: record rejected: ") != 5:
                 fail("not every bad message was logged once")
         elif case == "security":
             out = publish_record(markcell, config_for(source, work / "inspection", recording, broker, "insp-1"),

@@ -4,6 +4,7 @@
 #include <mqtt_protocol.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <mutex>
 
@@ -47,9 +48,15 @@ MqttClient::MqttClient(MqttClientConfig config) : config_(std::move(config)) {
     // The broker's certificate must name the address connected to (no insecure mode).
     if (rc == MOSQ_ERR_SUCCESS) rc = mosquitto_tls_opts_set(mosq_, 1, "tlsv1.2", nullptr);
   }
-  if (rc == MOSQ_ERR_SUCCESS && !config_.will_topic.empty())
+  if (rc == MOSQ_ERR_SUCCESS && !config_.will_topic.empty()) {
+    // (the will takes ownership of its properties when accepted)
+    mosquitto_property* will_props = nullptr;
+    if (!config_.will_schema.empty())
+      mosquitto_property_add_string_pair(&will_props, MQTT_PROP_USER_PROPERTY, "schema", config_.will_schema.c_str());
     rc = mosquitto_will_set_v5(mosq_, config_.will_topic.c_str(), static_cast<int>(config_.will_payload.size()),
-                               config_.will_payload.data(), 1, true, nullptr);
+                               config_.will_payload.data(), 1, true, will_props);
+    if (rc != MOSQ_ERR_SUCCESS) mosquitto_property_free_all(&will_props);
+  }
   if (rc != MOSQ_ERR_SUCCESS) {
     const std::string why = mosq_error(rc);
     mosquitto_destroy(mosq_);
@@ -91,13 +98,27 @@ void MqttClient::on_disconnect_cb(mosquitto*, void* self_v, int rc, const mqtt5_
                                                                                : mosquitto_reason_string(rc)));
 }
 
-void MqttClient::on_message_cb(mosquitto*, void* self_v, const mosquitto_message* m, const mqtt5__property*) {
+void MqttClient::on_message_cb(mosquitto*, void* self_v, const mosquitto_message* m, const mqtt5__property* props) {
   auto* self = static_cast<MqttClient*>(self_v);
   if (!self->on_message_ || m == nullptr || m->topic == nullptr) return;
+  // The user property "schema" (the first one so named; at most 8 looked at).
+  std::string schema;
+  bool skip = false;
+  for (int i = 0; i < 8; ++i, skip = true) {
+    char* name = nullptr;
+    char* value = nullptr;
+    const mosquitto_property* p = mosquitto_property_read_string_pair(props, MQTT_PROP_USER_PROPERTY, &name, &value, skip);
+    const bool found = p != nullptr && name != nullptr && std::strcmp(name, "schema") == 0 && value != nullptr;
+    if (found) schema = value;
+    std::free(name);
+    std::free(value);
+    if (p == nullptr || found) break;
+    props = p;
+  }
   self->on_message_(MqttMessage{std::string_view(m->topic),
                                 std::string_view(static_cast<const char*>(m->payload),
                                                  m->payload == nullptr ? 0 : static_cast<std::size_t>(m->payloadlen)),
-                                m->retain});
+                                m->retain, schema});
 }
 
 void MqttClient::on_publish_cb(mosquitto*, void* self_v, int, int rc, const mqtt5__property*) {
@@ -175,9 +196,12 @@ bool MqttClient::subscribe(const std::string& filter) {
   return rc == MOSQ_ERR_SUCCESS;
 }
 
-bool MqttClient::publish(const std::string& topic, std::string_view payload, bool retain, std::uint32_t expiry_s) {
+bool MqttClient::publish(const std::string& topic, std::string_view payload, bool retain, std::uint32_t expiry_s,
+                         const char* schema, const char* content_type) {
   Properties props;
   if (expiry_s > 0) mosquitto_property_add_int32(&props.p, MQTT_PROP_MESSAGE_EXPIRY_INTERVAL, expiry_s);
+  if (schema != nullptr) mosquitto_property_add_string_pair(&props.p, MQTT_PROP_USER_PROPERTY, "schema", schema);
+  if (content_type != nullptr) mosquitto_property_add_string(&props.p, MQTT_PROP_CONTENT_TYPE, content_type);
   unacked_.fetch_add(1, std::memory_order_relaxed);
   const int rc = mosquitto_publish_v5(mosq_, nullptr, topic.c_str(), static_cast<int>(payload.size()), payload.data(), 1,
                                       retain, props.p);

@@ -68,6 +68,7 @@ drivers::MqttClientConfig client_config(const BrokerConfig& c, BrokerLink::Role 
   d.keepalive = c.keepalive;
   d.will_topic = BrokerTopics(c.line, c.station).state;
   d.will_payload = state_json(c, role, "offline", "the connection was lost", "");
+  d.will_schema = kBrokerSchema;
   return d;
 }
 
@@ -192,7 +193,8 @@ void BrokerLink::stop(const std::string& reason) {
   stop_cv_.notify_all();
   if (thread_.joinable()) thread_.join();
   if (client_.connected()) {
-    client_.publish(topics_.state, state_json(config_, role_, "offline", reason, ""), true);
+    client_.publish(topics_.state, state_json(config_, role_, "offline", reason, ""), true, 0, kBrokerSchema,
+                    "application/json");
     for (int i = 0; i < 50 && client_.unacknowledged() > 0 && client_.loop(millis(10)); ++i) {
     }
   }
@@ -206,7 +208,8 @@ void BrokerLink::publish_state(const std::string& state, const std::string& reas
     if (key == state_shown_) return;
     state_shown_ = key;
   }
-  client_.publish(topics_.state, state_json(config_, role_, state, reason, utc), true);
+  client_.publish(topics_.state, state_json(config_, role_, state, reason, utc), true, 0, kBrokerSchema,
+                  "application/json");
 }
 
 void BrokerLink::publish_result(const std::string& line) {
@@ -214,7 +217,7 @@ void BrokerLink::publish_result(const std::string& line) {
     results_dropped_.fetch_add(1, std::memory_order_relaxed);
     return;
   }
-  client_.publish(topics_.result, line, false);
+  client_.publish(topics_.result, line, false, 0, kBrokerSchema, "application/json");
 }
 
 bool BrokerLink::publish_record(const std::string& text, const std::string& source, Nanos timeout) {
@@ -226,7 +229,7 @@ bool BrokerLink::publish_record(const std::string& text, const std::string& sour
   const control::PanelJob job = parse_inspection_record(text, source, panel_types_);
   const std::string topic = topics_.record_prefix + panel_id_topic_level(job.panel_id.view());
   const auto expiry = static_cast<std::uint32_t>(config_.record_retain / seconds(1));
-  if (!client_.publish(topic, text, true, expiry)) return false;
+  if (!client_.publish(topic, text, true, expiry, kBrokerSchema, "application/yaml")) return false;
   const Nanos until = monotonic_now() + timeout;
   while (client_.unacknowledged() > 0 && monotonic_now() < until) client_.loop(millis(10));
   return client_.unacknowledged() == 0 && client_.error().empty();
@@ -262,7 +265,7 @@ LineWord BrokerLink::word() const {
 void BrokerLink::on_message(const drivers::MqttMessage& m) {
   if (role_ != Role::kMarking) return;
   if (m.topic == topics_.arrival) return on_arrival(m.payload);
-  on_record(m.topic, m.payload);
+  on_record(m.topic, m.payload, m.schema);
 }
 
 void BrokerLink::reject(std::string_view topic, std::string_view payload, const std::string& panel_id,
@@ -292,11 +295,15 @@ void BrokerLink::reject(std::string_view topic, std::string_view payload, const 
   events_.push_back(std::move(ev));
 }
 
-void BrokerLink::on_record(std::string_view topic, std::string_view payload) {
+void BrokerLink::on_record(std::string_view topic, std::string_view payload, std::string_view schema) {
   if (payload.empty()) return;  // a retained record cleared
   const std::string where = "MQTT " + std::string(topic);
   const std::size_t slash = topic.rfind('/');
   const std::string level(topic.substr(slash + 1));
+  if (!schema.empty() && schema != kBrokerSchema)
+    return reject(topic, payload, "",
+                  where + ": schema '" + std::string(schema.substr(0, 32)) + "' is not one this station reads (" +
+                      kBrokerSchema + ")");
   if (payload.size() > kMaxPayloadBytes)
     return reject(topic, payload, "",
                   where + ": " + std::to_string(payload.size()) + " bytes, more than the " +

@@ -36,12 +36,15 @@ struct MqttClientConfig {
   std::uint32_t session_expiry_s = 86'400;  // how long the broker keeps the session of a station that is away
   std::size_t max_message_bytes = 4u << 20;  // the broker sends nothing larger (CONNECT's maximum packet size)
   std::string will_topic, will_payload;      // retained, QoS 1 (empty topic: none)
+  std::string will_schema;                   // the will's user property "schema" (empty: none)
 };
 
 struct MqttMessage {
   std::string_view topic;
   std::string_view payload;
   bool retained = false;
+  // The MQTT 5 user property "schema" (the payload's format version), "" when absent.
+  std::string_view schema;
 };
 
 class MqttClient {
@@ -70,7 +73,9 @@ class MqttClient {
   // QoS 1 subscription (the broker's refusal comes later: error()).
   bool subscribe(const std::string& filter);
   // QoS 1. `expiry_s` > 0: the broker drops it (retained or queued) after that long.
-  bool publish(const std::string& topic, std::string_view payload, bool retain, std::uint32_t expiry_s = 0);
+  // `schema` non-empty: sent as the user property "schema", with `content_type`.
+  bool publish(const std::string& topic, std::string_view payload, bool retain, std::uint32_t expiry_s = 0,
+               const char* schema = nullptr, const char* content_type = nullptr);
   // Messages published and not yet acknowledged by the broker.
   std::size_t unacknowledged() const { return unacked_.load(std::memory_order_relaxed); }
   // Subscriptions the broker has not answered yet.

@@ -12,6 +12,10 @@
 //                                          "offline")
 //   markcell/<line>/<station>/result       each line of the results file, as appended
 //
+// Records and results carry the MQTT 5 user property `schema` = kBrokerSchema (their
+// format's version; a record with another one is rejected, one without it is taken as
+// this version: a plain MQTT client may publish one).
+//
 // <id> is the panel id with every character but letters, digits and . _ - : written as
 // %XX (an id may hold / # +, which MQTT reserves).
 //
@@ -45,6 +49,8 @@
 #include "markcell/host/plc_link.hpp"
 
 namespace markcell::host {
+
+inline constexpr const char* kBrokerSchema = "1";
 
 // The topic level (and file-name part) of a panel id: see above.
 std::string panel_id_topic_level(std::string_view panel_id);
@@ -115,7 +121,7 @@ class BrokerLink {
 
  private:
   void on_message(const drivers::MqttMessage& m);
-  void on_record(std::string_view topic, std::string_view payload);
+  void on_record(std::string_view topic, std::string_view payload, std::string_view schema);
   void on_arrival(std::string_view payload);
   void reject(std::string_view topic, std::string_view payload, const std::string& panel_id, const std::string& reason);
   void beat();  // the connection alive: the arrival word heard now

@@ -42,7 +42,7 @@ import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import operator_page_test  # noqa: E402
-from operator_page_test import fail, free_port, wait_for  # noqa: E402
+from operator_page_test import fail, free_port, record_with_id, wait_for  # noqa: E402
 
 import paho.mqtt.client as mqtt  # noqa: E402
 
@@ -199,14 +199,6 @@ def config_for(source, work, recording, broker, station):
          f"    station: {station}\n    username: {station}\n    password_file: {broker.dir / (station + '.password')}\n"
          f"    ca_file: {broker.dir / 'ca.crt'}\n    keepalive_s: 5\n    record_retain_s: 60"),
     ])
-
-
-def record_with_id(recording, panel_id):
-    text = (recording / "recording" / "inspection.yaml").read_text()
-    text, n = re.subn(r"(?m)^panel_id: .*$", f"panel_id: {panel_id}", text)
-    if n != 1:
-        fail("the inspection record has no panel_id line")
-    return text
 
 
 def publish_record(markcell, config, path, expect_rc=0):

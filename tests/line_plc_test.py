@@ -36,7 +36,7 @@ import time
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import operator_page_test  # noqa: E402
-from operator_page_test import fail, free_port, wait_for  # noqa: E402
+from operator_page_test import fail, free_port, record_with_id, wait_for  # noqa: E402
 
 from pymodbus.datastore import ModbusSequentialDataBlock, ModbusServerContext, ModbusSlaveContext  # noqa: E402
 from pymodbus.server.async_io import ModbusTcpServer  # noqa: E402
@@ -121,14 +121,6 @@ def cell_config(source, work, recording, plc):
          f"  silent_ms: 500\n  modbus:\n    server: 127.0.0.1:{plc.port}\n    unit_id: {UNIT}\n"
          f"    plc_block: {PLC_BLOCK}\n    cell_block: {CELL_BLOCK}\n    poll_ms: 20"),
     ])
-
-
-def record_with_id(recording, panel_id):
-    text = (recording / "recording" / "inspection.yaml").read_text()
-    text, n = re.subn(r"(?m)^panel_id: .*$", f"panel_id: {panel_id}", text)
-    if n != 1:
-        fail("the inspection record has no panel_id line")
-    return text
 
 
 def run_cell(markcell, work, config, seconds):

@@ -99,6 +99,15 @@ def cell_config(source, work, port=None, recording=None, extra=()):
     return path
 
 
+def record_with_id(recording, panel_id):
+    """The recording's inspection record with another panel id (the line tests' records)."""
+    text = (recording / "recording" / "inspection.yaml").read_text()
+    text, n = re.subn(r"(?m)^panel_id: .*$", f"panel_id: {panel_id}", text)
+    if n != 1:
+        fail("the inspection record has no panel_id line")
+    return text
+
+
 def start_cell(markcell, source, work, estop_at=None, seconds=14):
     for name in ("records", "results.jsonl", "run.log"):
         p = work / name

@@ -32,6 +32,9 @@ MqttClient::MqttClient(MqttClientConfig config) : config_(std::move(config)) {
   // QoS 1 messages it missed) for session_expiry_s.
   mosq_ = mosquitto_new(config_.client_id.c_str(), false, this);
   if (mosq_ == nullptr) throw std::runtime_error("MQTT: cannot make a client: " + std::string(std::strerror(errno)));
+  // One thread drives the loop while another publishes: libmosquitto must know (without
+  // this it takes single-threaded shortcuts that race; mosquitto.h, mosquitto_threaded_set).
+  mosquitto_threaded_set(mosq_, true);
   mosquitto_int_option(mosq_, MOSQ_OPT_PROTOCOL_VERSION, MQTT_PROTOCOL_V5);
   mosquitto_int_option(mosq_, MOSQ_OPT_TCP_NODELAY, 1);
   mosquitto_connect_v5_callback_set(mosq_, &MqttClient::on_connect_cb);

@@ -301,9 +301,11 @@ void ServiceLoop::watch_broker() {
   if (!broker_) return;
   if (cell_.sim_clock() != nullptr) broker_->poll();  // (the real clock: its own thread)
   const std::string error = broker_->error();
-  const bool down = !broker_->word().error.empty() && !error.empty();
+  const bool down = !broker_->connected();
   if (down && !broker_down_)
-    log(3, "markcell: broker: " + escape_log(error) + " (records wait at the broker; retrying)", {{"BROKER_ERROR", error}});
+    log(3, "markcell: broker: " + escape_log(error.empty() ? "not connected" : error) +
+               " (records wait at the broker; retrying)",
+        {{"BROKER_ERROR", error}});
   if (!down && broker_down_) log(6, "markcell: broker: connected again to " + broker_->peer());
   broker_down_ = down;
   std::string last_reason;

@@ -114,6 +114,7 @@ class BrokerLink {
   std::vector<BrokerEvent> take_events();
   LineWord word() const;  // the arrivals heard (panel_id_source: broker) and the connection's error
   std::string peer() const { return client_.peer(); }
+  bool connected() const { return client_.connected(); }
   const BrokerTopics& topics() const { return topics_; }
   std::uint64_t redeliveries() const { return redeliveries_.load(std::memory_order_relaxed); }
   std::uint64_t results_dropped() const { return results_dropped_.load(std::memory_order_relaxed); }

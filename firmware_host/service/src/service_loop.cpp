@@ -240,16 +240,20 @@ void ServiceLoop::take_records(Nanos now) {
                    {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}});
       continue;
     }
-    log(3, format("markcell: record rejected: %s (moved to %s)", escape_log(ev.reason).c_str(), escape_log(ev.file).c_str()),
-                 {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}, {"REJECT_REASON", ev.reason}});
-    if (line_) line_->report().records_rejected.fetch_add(1, std::memory_order_relaxed);
-    if (results_) {
-      try {
-        results_->append(ResultsFile::rejected_json(config_.name, utc_.at(now), ev.file, ev.panel_id, ev.reason));
-      } catch (const std::exception& e) {
-        log(3, "markcell: " + escape_log(e.what()));
-      }
-    }
+    record_rejected(ev.file, ev.panel_id, ev.reason, " (moved to " + escape_log(ev.file) + ")",
+                    {{"PANEL_ID", ev.panel_id}, {"RECORD_FILE", ev.file}, {"REJECT_REASON", ev.reason}}, now);
+  }
+}
+
+void ServiceLoop::record_rejected(const std::string& record, const std::string& panel_id, const std::string& reason,
+                                  const std::string& where, std::initializer_list<JournalField> fields, Nanos at) {
+  log(3, "markcell: record rejected: " + escape_log(reason) + where, fields);
+  if (line_) line_->report().records_rejected.fetch_add(1, std::memory_order_relaxed);
+  if (!results_) return;
+  try {
+    results_->append(ResultsFile::rejected_json(config_.name, utc_.at(at), record, panel_id, reason));
+  } catch (const std::exception& e) {
+    log(3, "markcell: " + escape_log(e.what()));
   }
 }
 
@@ -310,18 +314,10 @@ void ServiceLoop::watch_broker() {
   broker_down_ = down;
   std::string last_reason;
   for (const BrokerEvent& ev : broker_->take_events()) {
-    log(3, format("markcell: record rejected: %s%s", escape_log(ev.reason).c_str(),
-                  ev.file.empty() ? "" : (" (saved to " + escape_log(ev.file) + ")").c_str()),
-        {{"PANEL_ID", ev.panel_id}, {"RECORD_TOPIC", ev.topic}, {"REJECT_REASON", ev.reason}});
     if (page_) page_->update([&](OperatorState& s) { ++s.records_rejected; });
-    if (results_) {
-      try {
-        results_->append(ResultsFile::rejected_json(config_.name, utc_.at(now()), ev.file.empty() ? ev.topic : ev.file,
-                                                    ev.panel_id, ev.reason));
-      } catch (const std::exception& e) {
-        log(3, "markcell: " + escape_log(e.what()));
-      }
-    }
+    record_rejected(ev.file.empty() ? ev.topic : ev.file, ev.panel_id, ev.reason,
+                    ev.file.empty() ? std::string() : " (saved to " + escape_log(ev.file) + ")",
+                    {{"PANEL_ID", ev.panel_id}, {"RECORD_TOPIC", ev.topic}, {"REJECT_REASON", ev.reason}}, now());
     last_reason = "record rejected: " + ev.reason;
   }
   // The station's state for the line: fault (with the safe stop's reason), marking (a

@@ -119,6 +119,10 @@ class ServiceLoop {
   void collect();
   void log_faults();
   void take_records(Nanos now);
+  // A record refused, by the folder or the broker: logged (`where` after the reason),
+  // counted for the PLC, appended to the results file as `record` rejected.
+  void record_rejected(const std::string& record, const std::string& panel_id, const std::string& reason,
+                       const std::string& where, std::initializer_list<JournalField> fields, Nanos at);
   void apply_plc_events(Nanos elapsed);
   // The line's PLC: its newest word looked at (the simulated clock: one exchange first);
   // each announcement, a PLC that stops or starts answering and a block that is not

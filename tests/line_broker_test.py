@@ -21,7 +21,7 @@ and the recording as its cameras (the panel arrives at 0.5 s):
               field wrong, an id that is not the topic's): each rejected with its reason
               in the results file, saved to rejected/, said on the station's state; the
               door is still marked afterwards
-    crash     the marking station killed with SIGKILL at 50 random moments while 200
+    crash     the marking station killed with SIGKILL at 50 random moments while 100
               records flow: each has exactly one accepted line and one result
     bench     `markcell bench broker` on 601 records: every delivery accepted once
     absent    no broker at the start: `markcell run` exits 1 with the reason
@@ -241,7 +241,7 @@ def crash(markcell, source, work, recording, broker, plant, tracking):
     all the same); records pair in order (their names are their ids' order)."""
     import random
     import threading
-    records, kills = 200, 50
+    records, kills = 100, 50
     rng = random.Random(20261207)
     text = (source / "config" / "cell.example.yaml").read_text()
     for pattern, replacement in [

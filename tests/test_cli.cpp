@@ -21,7 +21,7 @@ const std::string kMarkcell = MARKCELL_BINARY;
 }
 
 TEST_CASE("every subcommand has --help") {
-  for (const char* sub : {"check-config", "run", "sim", "replay", "select-mfs", "calibrate-stereo", "calibrate-base", "calibrations", "capacity", "record", "bench", "bench loop", "bench vision"}) {
+  for (const char* sub : {"check-config", "inspect", "run", "sim", "replay", "select-mfs", "calibrate-stereo", "calibrate-base", "calibrations", "capacity", "record", "bench", "bench loop", "bench vision"}) {
     const auto r = run_command(kMarkcell + " " + sub + " --help");
     INFO(sub << ": " << r.output);
     CHECK(r.exit_code == 0);
@@ -56,7 +56,7 @@ TEST_CASE("an unknown subcommand: the one meant, or the known ones, and exit 2")
                        Case{"repaly --config x", "markcell: unknown subcommand 'repaly'; did you mean replay?"},
                        Case{"sel", "markcell: unknown subcommand 'sel'; did you mean select-mfs?"},
                        Case{"bench rendr", "markcell: unknown subcommand 'bench rendr'; did you mean bench render?"},
-                       Case{"frobnicate", "markcell: unknown subcommand 'frobnicate' (known: check-config, config-schema, run, publish-record, "
+                       Case{"frobnicate", "markcell: unknown subcommand 'frobnicate' (known: check-config, config-schema, run, publish-record, inspect, "
                                           "calibrate-stereo, calibrate-base, calibrations, record, capacity, select-mfs, bench, sim, "
                                           "replay)"},
                        Case{"bench x", "markcell: unknown subcommand 'bench x' (known: loop, vision, render, broker)"}}) {

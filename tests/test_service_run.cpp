@@ -260,7 +260,7 @@ TEST_CASE("the record drop folder against hostile input: links, FIFOs, folders, 
   CHECK(std::filesystem::exists("/etc/passwd"));
   ev = poll();
   CHECK(reason_of(ev, "0006.yaml").find("0006.yaml:1:1: junk: unknown key (known: panel_id, panel_type, frame, units, "
-                                        "macro_features, defects)") != std::string::npos);
+                                        "macro_features, macro_feature_quality, defects)") != std::string::npos);
   CHECK(reason_of(ev, "0007.yaml").find("0007.yaml:1: nested deeper than an inspection record is") != std::string::npos);
   CHECK(reason_of(ev, "0008.yaml").find("panel_id: character 3 (0x0a, a control character) is not allowed") != std::string::npos);
   // ... and the valid record behind them all is taken in the same poll.

@@ -558,7 +558,7 @@ void MarkingSequence::place_unmeasured_mfs(const msg::PoseEstimate& e, const Int
   req.placement_serial = ++placement_serial_;
   req.known.fill(false);
   for (std::size_t i = 0; i < n; ++i) {
-    req.known[i] = !e.mfs[i].reference_known || e.mfs[i].reference_observed == 0;
+    req.known[i] = job_.mfs_SL[i].allFinite() && (!e.mfs[i].reference_known || e.mfs[i].reference_observed == 0);
     req.reference_P[i] = ic.X_P_SL * job_.mfs_SL[i];
   }
   tracker_requests_.publish();

@@ -89,6 +89,9 @@ int sim_command(const CellConfig& config, const std::string& scenario_name, bool
   } catch (const rig::GenerationStopped& e) {
     std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
     return 128 + e.signal;
+  } catch (const std::exception& e) {
+    std::cerr << "markcell sim: " << escape_log(e.what()) << "\n";
+    return kExitRuntime;
   }
   if (options.progress) std::cerr << "markcell sim: " << frames << " stereo frames; replaying through the cell\n";
   return replay_command(config, recording.string(), out, options);

@@ -5,12 +5,14 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "markcell/common/bounded_file.hpp"
 #include "markcell/common/log_escape.hpp"
 #include "markcell/host/inspection_record.hpp"
 #include "markcell/host/json.hpp"
@@ -21,6 +23,56 @@
 #include "markcell/vision/stereo_rig.hpp"
 
 namespace markcell::rig {
+
+namespace {
+// The inspection station's figures from the rig's FOLDER/inspection/mfs.csv (rig/inspection.hpp):
+// MFs measured, their epipolar residuals and their error against the truth. None for a
+// recording without it (another tool's), or one that does not read as the rig writes it.
+struct InspectionFigures {
+  int mfs = 0, measured = 0;
+  double epipolar_median = 0, epipolar_max = 0, error_median_mm = 0, error_max_mm = 0;
+};
+std::optional<InspectionFigures> inspection_figures(const std::string& recording) {
+  const std::filesystem::path path = std::filesystem::path(recording) / "inspection" / "mfs.csv";
+  std::string text;
+  try {
+    text = read_bounded_file(path.string(), 1 << 20, "the inspection station's MF table");
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+  std::istringstream in(text);
+  std::string line;
+  if (!std::getline(in, line) || line.rfind("mf,found,", 0) != 0) return std::nullopt;
+  InspectionFigures f;
+  std::vector<double> epipolar, error;
+  while (std::getline(in, line) && f.mfs < 64) {
+    std::vector<std::string> cells;
+    std::istringstream row(line);
+    for (std::string cell; std::getline(row, cell, ',');) cells.push_back(cell);
+    if (cells.size() < 14) return std::nullopt;
+    ++f.mfs;
+    if (cells[1] != "1") continue;
+    ++f.measured;
+    try {
+      epipolar.push_back(std::stod(cells[6]));
+      error.push_back(std::stod(cells[13]));
+    } catch (const std::exception&) {
+      return std::nullopt;
+    }
+  }
+  const auto median = [](std::vector<double> v) {
+    if (v.empty()) return 0.0;
+    std::sort(v.begin(), v.end());
+    return v.size() % 2 == 1 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+  };
+  f.epipolar_median = median(epipolar);
+  f.error_median_mm = median(error);
+  f.epipolar_max = epipolar.empty() ? 0.0 : *std::max_element(epipolar.begin(), epipolar.end());
+  f.error_max_mm = error.empty() ? 0.0 : *std::max_element(error.begin(), error.end());
+  return f;
+}
+}  // namespace
+
 
 // The rig runs the service's cell: its configuration, its cell and their helpers.
 using namespace markcell::host;
@@ -330,6 +382,7 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
         cv::Mat area = to_bgr(f.left);
         std::vector<cv::Point> rec_pts, est_pts;
         for (std::size_t k = 0; k < std::min(e.mfs.size(), job.mfs_SL.size()); ++k) {
+          if (!job.mfs_SL[k].allFinite()) continue;  // not measured at the inspection station
           const Eigen::Vector2d a = rig.project(vision::Camera::kLeft, ic.X_P_SL * job.mfs_SL[k]);
           rec_pts.emplace_back(static_cast<int>(std::lround(a.x())), static_cast<int>(std::lround(a.y())));
           if (e.mfs[k].valid) {
@@ -412,6 +465,13 @@ std::vector<std::string> write_report(const ReplayReport& report, const CellConf
                       {"seconds_per_defect", {{"door", 3.33}, {"fender", 3.75}}},
                       {"region_diameter_cm", {2, 3}},
                       {"frame_rate_hz", 0.5}};
+  if (const auto insp = inspection_figures(report.recording))
+    doc["inspection"] = Json{{"macro_features", insp->mfs},
+                             {"measured", insp->measured},
+                             {"epipolar_px", {{"median", insp->epipolar_median}, {"max", insp->epipolar_max}}},
+                             {"triangulation_error_mm", {{"median", insp->error_median_mm}, {"max", insp->error_max_mm}}}};
+  else
+    doc["inspection"] = nullptr;
   Json plots = Json::array();
   for (const auto& f : files)
     if (f.ends_with(".png")) plots.push_back(std::filesystem::path(f).filename().string());
@@ -508,6 +568,11 @@ std::string report_table(const ReplayReport& report, const std::vector<std::stri
         if (d.skipped != control::SkipReason::kNone)
           o << "  [" << r.predictor << "] panel " << p.result.panel_id.c_str() << " defect " << d.id
             << " skipped: " << control::to_string(d.skipped) << "\n";
+  if (const auto insp = inspection_figures(report.recording))
+    o << "inspection station: " << insp->measured << " of " << insp->mfs << " MFs measured in the scanner's pair; "
+      << "error against the truth median " << fixed(insp->error_median_mm, 2) << " / max " << fixed(insp->error_max_mm, 2)
+      << " mm; epipolar residual median " << fixed(insp->epipolar_median, 2) << " / max " << fixed(insp->epipolar_max, 2)
+      << " px\n";
   o << "\ntiming (" << report.runs.front().predictor << " run, " << (report.devices == "simulated" ? "simulated" : "real")
     << " clock):\n" << report.runs.front().timing_report;
   o << "\nwrote:\n";

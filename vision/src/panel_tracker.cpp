@@ -148,7 +148,14 @@ SnapResult snap(const Pyramid& pyramid, const Eigen::Vector2d& clicked, int snap
 }
 }  // namespace
 
-std::string_view to_string(MfKind k) { return k == MfKind::kHole ? "hole" : "corner"; }
+std::string_view to_string(MfKind k) {
+  switch (k) {
+    case MfKind::kCorner: return "corner";
+    case MfKind::kHole: return "hole";
+    case MfKind::kUnseen: return "unseen";
+  }
+  return "?";
+}
 
 double snap_limit_px(int snap_radius) { return std::max(snap_radius, 1); }
 
@@ -176,6 +183,13 @@ PanelTypeModel make_panel_type(const std::string& name, const cv::Mat& reference
   for (int i = 0; i < static_cast<int>(picks.size()); ++i) {
     const auto k = static_cast<std::size_t>(i);
     PanelTypeModel::Mf& mf = *m.mfs.emplace_back();  // (at most kMaxMacroFeatures: checked above)
+    if (picks[k].kind == MfKindRequest::kUnseen) {  // kept in the order, with empty templates
+      mf.reference_px = picks[k].px;
+      mf.kind = MfKind::kUnseen;
+      mf.template_patch.radius = kTemplateRadius;
+      mf.coarse_template.radius = kTemplateRadius / 2 + 1;
+      continue;
+    }
     const SnapResult r = snap(pyramid, picks[k].px, snap_radius, picks[k].kind, mf.template_patch, mf.coarse_template);
     if (!r.ok()) throw std::invalid_argument("panel type '" + name + "': macro-feature " + std::to_string(i + 1) + ": " + r.problem);
     mf.reference_px = r.p;
@@ -238,9 +252,9 @@ PanelTypeModel load_panel_type(const std::string& path) {
       PanelTypeModel::Mf& mf = m.mfs[static_cast<std::size_t>(i)];
       const cv::FileNode k = kinds[i], r = radii[i];
       const std::string kind = k.isString() ? static_cast<std::string>(k) : std::string();
-      if (kind != "corner" && kind != "hole")
-        throw std::runtime_error(path + ": 'kinds' entry " + std::to_string(i + 1) + " must be corner or hole");
-      mf.kind = kind == "hole" ? MfKind::kHole : MfKind::kCorner;
+      if (kind != "corner" && kind != "hole" && kind != "unseen")
+        throw std::runtime_error(path + ": 'kinds' entry " + std::to_string(i + 1) + " must be corner, hole or unseen");
+      mf.kind = kind == "hole" ? MfKind::kHole : kind == "unseen" ? MfKind::kUnseen : MfKind::kCorner;
       mf.hole_radius_px = r.isReal() || r.isInt() ? static_cast<double>(r) : -1.0;
       const bool fits = mf.kind == MfKind::kHole ? mf.hole_radius_px >= 1.0 && mf.hole_radius_px <= kMaxHoleMfRadiusPx
                                                  : mf.hole_radius_px == 0.0;
@@ -248,7 +262,7 @@ PanelTypeModel load_panel_type(const std::string& path) {
         throw std::runtime_error(path + ": 'hole_radius_px' entry " + std::to_string(i + 1) + " must be " +
                                  (mf.kind == MfKind::kHole ? "1.." + std::to_string(static_cast<int>(kMaxHoleMfRadiusPx)) +
                                                                  " px for a hole"
-                                                           : std::string("0 for a corner")));
+                                                           : std::string("0 for a corner or an unseen MF")));
     }
   }
   auto read_patches = [&](const cv::Mat& mat, const char* key, int radius, Patch PanelTypeModel::Mf::*out) {
@@ -296,6 +310,38 @@ void PanelTracker::reset() {
   lost_frames_ = 0;
   known_.fill(false);
   tracked_.fill(false);
+}
+
+const StereoMeasurement& PanelTracker::measure(const cv::Mat& left, const cv::Mat& right) {
+  reset();
+  const PoseEstimate& e = process(0, 0, left, right);
+  reset();  // the next pair is another panel's
+  StereoMeasurement& m = measurement_;
+  m.mfs.clear();
+  m.found = 0;
+  m.reason = e.status == TrackStatus::kReinitialised ? std::string_view() : e.reason;
+  const Pyramid& L = left_[cur_];
+  const Eigen::Isometry3d X_CamL_CamR = rig_.calibration().X_CamR_CamL.inverse();
+  for (int i = 0; i < model_.count(); ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    MfMeasurement& out = *m.mfs.emplace_back();  // bounded: kMaxMacroFeatures MFs a model
+    const MacroFeatureObservation& o = e.mfs[k];
+    if (!o.valid) continue;
+    out.found = true;
+    ++m.found;
+    out.left = o.left;
+    out.right = o.right;
+    out.p_CamL = X_CamL_CamR * o.p_CamR;
+    out.epipolar_px = rig_.epipolar_distance(rig_.undistort(Camera::kLeft, o.left), rig_.undistort(Camera::kRight, o.right));
+    if (model_.mfs[k].kind == MfKind::kCorner) {
+      out.corner_response =
+          shi_tomasi(L, static_cast<int>(std::lround(o.left.x())), static_cast<int>(std::lround(o.left.y())), 2);
+    } else {
+      const HoleFit fit = fit_hole(L, o.left, hole_params_[k]);
+      out.hole_rms_px = fit.ok() ? fit.rms_px : 0.0;
+    }
+  }
+  return m;
 }
 
 void PanelTracker::set_reference(int mf, const Eigen::Vector3d& p_P) {
@@ -396,6 +442,7 @@ void PanelTracker::reinitialise() {
       double score = 0;
       int seen = 0;
       for (int i = 0; i < model_.count(); ++i) {
+        if (model_.mfs[static_cast<std::size_t>(i)].kind == MfKind::kUnseen) continue;
         const Eigen::Vector2d& r = model_.mfs[static_cast<std::size_t>(i)].reference_px;
         const double c = ncc(model_.mfs[static_cast<std::size_t>(i)].coarse_template, L, kCoarseLevel,
                              static_cast<int>(std::lround(r.x() / s)) + dx, static_cast<int>(std::lround(r.y() / s)) + dy);
@@ -416,8 +463,21 @@ void PanelTracker::reinitialise() {
     tracked_[k] = false;
     observed_[k] = 0;
     set_up_[k] = false;
-    if (best_score <= 0) continue;
-    const Eigen::Vector2d guess = model_.mfs[k].reference_px + Eigen::Vector2d(best_dx * s, best_dy * s);
+    if (best_score <= 0 || model_.mfs[k].kind == MfKind::kUnseen) continue;
+    Eigen::Vector2d guess = model_.mfs[k].reference_px + Eigen::Vector2d(best_dx * s, best_dy * s);
+    // Each MF's own offset from the common shift (a panel turned, or nearer than the
+    // reference, moves its MFs unequally), on the coarse level, within reinit_local_px.
+    if (const int local = params_.reinit_local_px / s; local > 0) {
+      const int cx = static_cast<int>(std::lround(guess.x() / s)), cy = static_cast<int>(std::lround(guess.y() / s));
+      double best_local = -2;
+      Eigen::Vector2d moved = guess;
+      for (int dy = -local; dy <= local; ++dy)
+        for (int dx = -local; dx <= local; ++dx) {
+          const double c = ncc(model_.mfs[k].coarse_template, L, kCoarseLevel, cx + dx, cy + dy);
+          if (c > best_local) best_local = c, moved = Eigen::Vector2d((cx + dx) * s, (cy + dy) * s);
+        }
+      guess = moved;
+    }
     double best = -1;
     Eigen::Vector2d p = guess;
     const int gx = static_cast<int>(std::lround(guess.x())), gy = static_cast<int>(std::lround(guess.y()));
@@ -587,7 +647,7 @@ void PanelTracker::reacquire() {
   const Pyramid& L = left_[cur_];
   for (int i = 0; i < model_.count(); ++i) {
     const auto k = static_cast<std::size_t>(i);
-    if (tracked_[k] || !known_[k]) continue;
+    if (tracked_[k] || !known_[k] || model_.mfs[k].kind == MfKind::kUnseen) continue;
     const Eigen::Vector3d p = estimate_.X_CamR_P * reference_P_[k];
     Eigen::Vector2d left = rig_.project(Camera::kLeft, p), right = rig_.project(Camera::kRight, p);
     if (!L.inside(0, left.x(), left.y(), params_.lk.radius + 2) || !right_.inside(0, right.x(), right.y(), params_.lk.radius + 2))

@@ -1,4 +1,4 @@
-// The service's subcommands: check-config, config-schema, run.
+// The service's subcommands: check-config, config-schema, run, publish-record (and inspect).
 #include <signal.h>
 
 #include <cmath>
@@ -9,6 +9,7 @@
 #include "markcell/host/calibration_state.hpp"
 #include "markcell/host/command.hpp"
 #include "markcell/host/inspection_record.hpp"
+#include "markcell/host/inspection_station.hpp"
 #include "markcell/host/service_loop.hpp"
 #include "markcell/sim/plc_script.hpp"
 
@@ -17,6 +18,13 @@ namespace {
 
 int check_config_command(const std::string& file) {
   const auto errors = check_config(file, task_catalog());
+  if (errors.empty() && is_inspection_station_config(read_bounded_file(file, kMaxConfigBytes, "a configuration"))) {
+    const InspectionStationConfig config = load_inspection_station_config(file);
+    std::cout << file << ": valid (an inspection station: markcell inspect)\n"
+              << "scanner calibration " << config.scanner_calibration << ": " << calibration_summary(config.scanner_calibration)
+              << "\n";
+    return 0;
+  }
   if (errors.empty()) {
     std::cout << file << ": valid\n";
     // The calibrations it uses, by file, date and fit: the one in use named beside its
@@ -195,6 +203,7 @@ void add_service_commands(CLI::App& app, Commands& out, const sigset_t& stop_sig
                      return 0;
                    });
                  }});
+  add_inspect_command(app, out);
 }
 
 }  // namespace markcell::host

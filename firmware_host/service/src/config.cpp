@@ -17,6 +17,7 @@
 
 #include "markcell/common/bounded_file.hpp"
 #include "markcell/common/param.hpp"
+#include "markcell/host/inspection_station.hpp"
 #include "markcell/host/operator_page.hpp"
 
 #include "markcell/vision/calibration_io.hpp"
@@ -719,15 +720,6 @@ void read_base_calibration(Reader& r, const YAML::Node& node, BaseCalibrationCon
 
 }  // namespace
 
-std::vector<ConfigError> check_config(const std::string& path, TaskTable known_tasks) {
-  std::vector<ConfigError> errors;
-  try {
-    load_config(path, known_tasks);
-  } catch (const ConfigInvalid& e) {
-    errors = e.errors();
-  }
-  return errors;
-}
 
 namespace {
 
@@ -746,6 +738,14 @@ std::string read_config_text(const std::string& path) {
 
 CellConfig load_config(const std::string& path, TaskTable known_tasks) {
   return load_config_text(read_config_text(path), path, known_tasks);
+}
+
+std::vector<ConfigError> check_config(const std::string& path, TaskTable known_tasks) {
+  try {
+    return check_config_text(read_config_text(path), path, known_tasks);
+  } catch (const ConfigInvalid& e) {
+    return e.errors();
+  }
 }
 
 std::vector<PanelTypeConfig> reload_recipes(const CellConfig& running, TaskTable known_tasks) {
@@ -775,37 +775,55 @@ std::vector<ConfigError> check_config_text(const std::string& text, const std::s
                                            TaskTable known_tasks) {
   std::vector<ConfigError> errors;
   try {
-    load_config_text(text, path, known_tasks);
+    if (is_inspection_station_config(text)) load_inspection_station_config_text(text, path);
+    else load_config_text(text, path, known_tasks);
   } catch (const ConfigInvalid& e) {
     errors = e.errors();
   }
   return errors;
 }
 
-CellConfig load_config_text(const std::string& text, const std::string& path, TaskTable known_tasks) {
-  std::vector<ConfigError> errors;
-  Reader r(path, errors);
-  CellConfig cfg;
-  cfg.file = path;
+namespace {
+// The document, bounded and parsed: one YAML map's worth of text, no deeper than the
+// loader walks, one document. `what` names the kind of configuration in messages.
+YAML::Node parse_config_root(const std::string& text, const std::string& path, const std::string& what,
+                             const std::string& the_what) {
   YAML::Node root;
   if (text.size() > kMaxConfigBytes)
     throw ConfigInvalid({ConfigError{path, 1, 1, "", std::to_string(text.size()) + " bytes, more than the " +
-                                                       std::to_string(kMaxConfigBytes) + " allowed for a cell configuration"}});
+                                                       std::to_string(kMaxConfigBytes) + " allowed for " + what}});
   if (const int line = nesting_beyond(text, kMaxYamlNesting); line > 0)
     throw ConfigInvalid({ConfigError{path, line, 1, "", "nested more than " + std::to_string(kMaxYamlNesting) + " levels deep"}});
   try {
     if (const int line = second_document_line(text); line > 0)
-      throw ConfigInvalid({ConfigError{path, line, 1, "", "a second YAML document: a cell configuration is one document"}});
+      throw ConfigInvalid({ConfigError{path, line, 1, "", "a second YAML document: " + what + " is one document"}});
     root = YAML::Load(text);
     if (!root.IsDefined() || root.IsNull())
-      throw ConfigInvalid({ConfigError{path, 1, 1, "", "the file is empty: expected the cell configuration (a map)"}});
+      throw ConfigInvalid({ConfigError{path, 1, 1, "", "the file is empty: expected " + the_what + " (a map)"}});
   } catch (const YAML::ParserException& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML syntax: " + e.msg}});
   } catch (const YAML::Exception& e) {
     throw ConfigInvalid({ConfigError{path, e.mark.line + 1, e.mark.column + 1, "", "YAML: " + e.msg}});
   }
+  return root;
+}
+}  // namespace
+
+CellConfig load_config_text(const std::string& text, const std::string& path, TaskTable known_tasks) {
+  std::vector<ConfigError> errors;
+  Reader r(path, errors);
+  CellConfig cfg;
+  cfg.file = path;
+  const YAML::Node root = parse_config_root(text, path, "a cell configuration", "the cell configuration");
   r.duplicate_keys(root, "");
   if (!errors.empty()) throw ConfigInvalid(errors);
+  if (root.IsMap() && root["station"].IsDefined()) {
+    r.error(root["station"], "station",
+            is_inspection_station_config(text)
+                ? "this is an inspection station's configuration: markcell inspect --config reads it"
+                : "a marking cell's configuration has no station key (station: inspection is an inspection station's)");
+    throw ConfigInvalid(errors);
+  }
   std::vector<std::string> sections;
   for (const auto& section : kConfigSections) sections.emplace_back(section.key);
   if (!r.map(root, "", sections)) throw ConfigInvalid(errors);
@@ -975,6 +993,86 @@ CellConfig load_config_text(const std::string& text, const std::string& path, Ta
   // The loader has checked everything the executive checks; this is the last line of
   // defence and must agree.
   control::validate(cfg.executive);
+  return cfg;
+}
+
+bool is_inspection_station_config(const std::string& text) {
+  // A line `station: inspection` at the top level (column 1), a comment after it allowed.
+  std::size_t at = 0;
+  while (at < text.size()) {
+    const std::size_t end = std::min(text.find('\n', at), text.size());
+    std::string_view line(text.data() + at, end - at);
+    if (const std::size_t hash = line.find('#'); hash != std::string_view::npos) line = line.substr(0, hash);
+    while (!line.empty() && (line.back() == ' ' || line.back() == '\r' || line.back() == '\t')) line.remove_suffix(1);
+    if (line == "station: inspection" || line == "station: \"inspection\"" || line == "station: 'inspection'") return true;
+    at = end + 1;
+  }
+  return false;
+}
+
+InspectionStationConfig load_inspection_station_config(const std::string& path) {
+  return load_inspection_station_config_text(read_config_text(path), path);
+}
+
+InspectionStationConfig load_inspection_station_config_text(const std::string& text, const std::string& path) {
+  std::vector<ConfigError> errors;
+  Reader r(path, errors);
+  InspectionStationConfig cfg;
+  cfg.file = path;
+  const YAML::Node root = parse_config_root(text, path, "an inspection station's configuration", "the inspection station's configuration");
+  r.duplicate_keys(root, "");
+  if (!errors.empty()) throw ConfigInvalid(errors);
+  if (!r.map(root, "", {"station", "inspection", "panel_types", "vision"})) throw ConfigInvalid(errors);
+  std::string station;
+  r.text(root, "", "station", station);
+  if (!station.empty() && station != "inspection")
+    r.error(root["station"], "station", "expected inspection, got '" + station + "' (a marking cell's configuration has no station key)");
+  vision::StereoCalibration scanner;
+  bool have_scanner = false;
+  if (const auto s = r.child(root, "", "inspection", true);
+      s && r.map(*s, "inspection", {"name", "scanner_calibration", "record_folder", "min_points_per_defect"})) {
+    r.text(*s, "inspection", "name", cfg.name);
+    r.existing_file(*s, "inspection", "scanner_calibration", cfg.scanner_calibration);
+    if (!cfg.scanner_calibration.empty()) {
+      try {
+        scanner = vision::load_stereo_calibration(cfg.scanner_calibration);
+        have_scanner = true;
+      } catch (const std::exception& e) {
+        r.error((*s)["scanner_calibration"], "inspection.scanner_calibration", e.what());
+      }
+    }
+    if ((*s)["record_folder"].IsDefined()) r.existing_file(*s, "inspection", "record_folder", cfg.record_folder, true);
+    r.integer(*s, "inspection", "min_points_per_defect", cfg.min_points_per_defect, 1, control::kMaxDefectPoints, false);
+  }
+  if (const auto p = r.child(root, "", "panel_types", true)) {
+    CellConfig types;
+    read_panel_types(r, *p, types);
+    cfg.panel_types = types.panel_types;
+    for (const PanelTypeConfig& panel : cfg.panel_types) {
+      const YAML::Node n = (*p)[panel.name];
+      const std::string TP = "panel_types." + panel.name;
+      if (!n.IsMap()) continue;
+      if (n["recipe"].IsDefined())
+        r.error(n["recipe"], TP + ".recipe", "an inspection station does not spray: a recipe belongs in the marking cell's configuration");
+      if (!n["file"].IsDefined()) {
+        r.error(n, TP, "missing required key 'file' (the panel type's MFs on a scanner image, markcell select-mfs)");
+        continue;
+      }
+      if (panel.file.empty() || !have_scanner) continue;
+      try {
+        const auto model = vision::load_panel_type(panel.file);
+        if (model.image_width != scanner.left.width || model.image_height != scanner.left.height)
+          r.error(n["file"], TP + ".file",
+                  "its MFs were picked on a " + std::to_string(model.image_width) + "x" + std::to_string(model.image_height) +
+                      " image; the scanner's cameras are " + std::to_string(scanner.left.width) + "x" +
+                      std::to_string(scanner.left.height) + " (select-mfs on a scanner image)");
+      } catch (const std::exception&) {
+        // read_panel_types has said what is wrong with it.
+      }
+    }
+  }
+  if (const auto v = r.child(root, "", "vision", false)) read_params(r, *v, "vision", cfg.vision);
+  if (!errors.empty()) throw ConfigInvalid(std::move(errors));
   return cfg;
 }
 

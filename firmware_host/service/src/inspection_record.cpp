@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
 
@@ -76,7 +77,7 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
     throw RecordInvalid(path + ":" + std::to_string(e.mark.line + 1) + ": YAML: " + e.msg);
   }
   if (!root.IsMap()) fail(path, root, "(document)", "expected a map");
-  only_keys(path, root, "", {"panel_id", "panel_type", "frame", "units", "macro_features", "defects"});
+  only_keys(path, root, "", {"panel_id", "panel_type", "frame", "units", "macro_features", "macro_feature_quality", "defects"});
   control::PanelJob job;
   const std::string id = scalar(path, root, "panel_id");
   if (const std::string why = panel_id_problem(id); !why.empty()) fail(path, root["panel_id"], "panel_id", why);
@@ -97,9 +98,43 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
   if (static_cast<int>(mfs.size()) != panel->macro_features)
     fail(path, mfs, "macro_features",
          std::to_string(mfs.size()) + " given, panel type '" + type + "' has " + std::to_string(panel->macro_features));
-  for (std::size_t i = 0; i < mfs.size(); ++i)
-    if (!job.mfs_SL.push_back(point(path, mfs[i], "macro_features[" + std::to_string(i) + "]")))
+  // An MF the inspection station did not find is `~`: it is held as not finite, which the
+  // inter-calibration leaves out. Three are the fewest a rigid fit rests on.
+  int measured = 0;
+  for (std::size_t i = 0; i < mfs.size(); ++i) {
+    const bool missing = mfs[i].IsNull();
+    const Eigen::Vector3d p = missing ? Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN())
+                                      : point(path, mfs[i], "macro_features[" + std::to_string(i) + "]");
+    measured += missing ? 0 : 1;
+    if (!job.mfs_SL.push_back(p))
       fail(path, mfs, "macro_features", std::to_string(mfs.size()) + " given, at most " + std::to_string(msg::kMaxMacroFeatures));
+  }
+  if (measured < 3)
+    fail(path, mfs, "macro_features", std::to_string(measured) + " measured (the rest ~), at least 3 are needed to place the panel");
+  // How the station saw each MF: checked for form (the marking station does not use it).
+  if (const YAML::Node q = root["macro_feature_quality"]; q.IsDefined()) {
+    if (!q.IsSequence() || q.size() != mfs.size())
+      fail(path, q, "macro_feature_quality", "expected a list with one entry per macro-feature (" + std::to_string(mfs.size()) + ")");
+    for (std::size_t i = 0; i < q.size(); ++i) {
+      const std::string F = "macro_feature_quality[" + std::to_string(i) + "]";
+      if (q[i].IsNull() != mfs[i].IsNull())
+        fail(path, q[i], F, mfs[i].IsNull() ? "must be ~: the macro-feature was not measured" : "missing for a measured macro-feature");
+      if (q[i].IsNull()) continue;
+      if (!q[i].IsMap()) fail(path, q[i], F, "expected a map");
+      only_keys(path, q[i], F, {"left_px", "right_px", "epipolar_px", "corner_response", "hole_rms_px"});
+      for (const auto& kv : q[i]) {
+        const YAML::Node v = kv.second;
+        const std::size_t n = v.IsSequence() ? v.size() : 1;
+        if (n > 2 || (v.IsSequence() && n != 2)) fail(path, v, F + "." + kv.first.Scalar(), "expected a number or [u, v]");
+        for (std::size_t j = 0; j < n; ++j) {
+          const YAML::Node e = v.IsSequence() ? v[j] : v;
+          double x = 0;
+          if (!e.IsScalar() || !YAML::convert<double>::decode(e, x) || !std::isfinite(x))
+            fail(path, e, F + "." + kv.first.Scalar(), "not a finite number");
+        }
+      }
+    }
+  }
   const YAML::Node defects = root["defects"];
   if (!defects.IsSequence()) fail(path, defects.IsDefined() ? defects : root, "defects", "expected a list (may be empty)");
   if (defects.size() > static_cast<std::size_t>(control::kMaxDefects))

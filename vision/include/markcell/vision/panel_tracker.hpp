@@ -43,10 +43,14 @@ inline constexpr int kTemplateRadius = 7;  // 15x15 template patches
 // What an MF is on the panel: a corner (of the outline, a cut-out, a character line's
 // end), refined as a Shi-Tomasi corner; or a round or oval hole's centre, refined by an
 // ellipse fitted to its edge (hole_fit.hpp) in each view.
-enum class MfKind : std::uint8_t { kCorner, kHole };
+// kUnseen: an MF of the panel type that this station cannot measure (a hole too large for
+// the template at the inspection scanner's scale, a corner its fixture hides): kept in
+// the panel type's order, never searched for; the inspection record gives it as `~`.
+enum class MfKind : std::uint8_t { kCorner, kHole, kUnseen };
 std::string_view to_string(MfKind k);
-// What select-mfs is asked for at a click: a corner, a hole, or whichever is there.
-enum class MfKindRequest : std::uint8_t { kAuto, kCorner, kHole };
+// What select-mfs is asked for at a click: a corner, a hole, or whichever is there (or,
+// from code, an MF this station does not see).
+enum class MfKindRequest : std::uint8_t { kAuto, kCorner, kHole, kUnseen };
 struct MfPick {
   Eigen::Vector2d px = Eigen::Vector2d::Zero();
   MfKindRequest kind = MfKindRequest::kAuto;
@@ -125,6 +129,7 @@ struct TrackerParams {
   double inlier_m = 0.008;          // rigid-motion consistency of an MF, metres (depth noise is ~2 mm)
   double depth_min = 2.0, depth_max = 4.5;  // where a panel can be, metres from CamR
   int lost_frames_to_reinit = 15;   // frames without a pose before the MFs are searched anew
+  int reinit_local_px = 0;          // each MF's own search around the panel's common shift (0: the shift's only)
   int ransac_iterations = 64;
   int reference_samples = 256;      // frames averaged into each MF's position in P
 
@@ -147,12 +152,33 @@ struct TrackerParams {
       forward_backward_px);
     v(Param{"lost_frames_to_reinit", Unit::kNone, 1, 10'000, "frames without a pose before the MFs are searched anew"},
       lost_frames_to_reinit);
+    v(Param{"reinit_local_px", Unit::kPixel, 0, 200,
+            "at re-initialisation, how far each MF may lie from where the panel's common shift puts it (a panel turned "
+            "or nearer than the reference: the inspection station's scanner; 0 on a line that only translates the panel)"},
+      reinit_local_px);
   }
   // What no single key's range says: report(key, message) for each problem.
   template <class Report>
   void validate(Report&& report) const {
     if (depth_min >= depth_max) report("depth_max_m", "must be greater than depth_min_m");
   }
+};
+
+// One MF as a station measures it on a single stereo pair (markcell inspect): where it is
+// in both views, where that puts it in the left camera's frame, and how well it was seen.
+struct MfMeasurement {
+  bool found = false;
+  Eigen::Vector2d left = Eigen::Vector2d::Zero(), right = Eigen::Vector2d::Zero();  // observed pixels
+  Eigen::Vector3d p_CamL = Eigen::Vector3d::Zero();  // triangulated (DLT), the left camera's frame, m
+  double epipolar_px = 0;      // the pair's distance from its epipolar line (undistorted, symmetric)
+  double corner_response = 0;  // a corner's Shi-Tomasi score at the left pixel (grey^2 per pixel); 0 for a hole
+  double hole_rms_px = 0;      // a hole's ellipse fit residual in the left view; 0 for a corner
+};
+struct StereoMeasurement {
+  int found = 0;
+  std::string_view reason;  // empty when at least min_macro_features were found; else why not (static text)
+  FixedVector<MfMeasurement, kMaxMacroFeatures> mfs;  // the panel type's order
+  bool ok() const { return reason.empty(); }
 };
 
 class PanelTracker {
@@ -162,6 +188,10 @@ class PanelTracker {
   const PoseEstimate& process(std::uint64_t seq, Nanos time, const cv::Mat& left, const cv::Mat& right);
   // A new panel: the next frame searches for the MFs.
   void reset();
+  // The inspection station's step (the same search, match, refinement and checks as a
+  // re-initialisation; the rig being the scanner's pair): the MFs found anew on this one
+  // pair, each with its quality. Leaves the tracker searching.
+  const StereoMeasurement& measure(const cv::Mat& left, const cv::Mat& right);
   // The MFs' positions in P (valid where `known`), set at re-initialisation; an MF not
   // found then can be given its position (from the inspection record through the
   // inter-calibration) so that it is picked up when it comes into view.
@@ -193,6 +223,7 @@ class PanelTracker {
   bool searching_ = true;
   int lost_frames_ = 0;
   PoseEstimate estimate_;
+  StereoMeasurement measurement_;
   void refine_reference(const Eigen::Isometry3d& X_CamR_P);
 
   std::array<Eigen::Vector3d, kMaxMacroFeatures> reference_P_{};

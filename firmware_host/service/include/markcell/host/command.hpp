@@ -27,6 +27,8 @@ using Commands = std::vector<Command>;
 // check-config, config-schema, run. `stop_signals`: blocked in every thread since main()'s
 // first line; run takes them with sigtimedwait.
 void add_service_commands(CLI::App& app, Commands& out, const sigset_t& stop_signals);
+// inspect: the inspection station's side (inspect_command.cpp).
+void add_inspect_command(CLI::App& app, Commands& out);
 
 // The configuration, or every error printed to stderr with the count (nullopt: exit 2).
 std::optional<CellConfig> load_or_report(const std::string& file);

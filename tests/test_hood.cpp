@@ -118,7 +118,6 @@ inspection:
   X_SL_Panel:
     translation: [0.15, 0.02, 2.0]
     rotation: [[1, 0, 0], [0, -1, 0], [0, 0, -1]]
-  pixel_sigma: 0.25
   depth_sigma: 0.0003
   ding_depth: 0.0004
   points_per_defect: 60

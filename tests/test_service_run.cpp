@@ -70,7 +70,7 @@ TEST_CASE("inspection records: every bad field is rejected with its file, line a
   const auto first_mf = good.find("  - [", good.find("macro_features:"));
   const std::string mf_line = good.substr(first_mf, good.find('\n', first_mf) - first_mf);
   const std::string nan = bad(mf_line, "  - [.nan, 0.1, 2.0]");
-  CHECK(nan.find("rec.yaml:6:") == 0);
+  CHECK(nan.find("rec.yaml:7:") == 0);  // (line 6: the comment above macro_features)
   CHECK(nan.find("macro_features[0]: not a finite number") != std::string::npos);
   const std::string units = bad(mf_line, "  - [150.0, 100.0, 2000.0]");
   CHECK(units.find("units must be metres") != std::string::npos);

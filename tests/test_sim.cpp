@@ -303,9 +303,12 @@ TEST_CASE("line-fast: the arm waits at home for refits to place every ding, then
   // (`markcell sim line-fast --seed N`, release build); these 11 s at seed 1, 3.2 mm.
   CHECK(json_number(json, "pose_error_mm", "max") < 4.0);
   CHECK(json_number(json, "seconds_per_defect", "seconds_per_defect") < 1.5);
-  // The same recording without the hold, as before it: the limit at 3 mm and the arm off
-  // at once. The far ding is sprayed on the first fits, several millimetres off in depth;
-  // a 1 mm limit without the hold keeps the arm waiting on the ding instead, and the pace
+  // The same recording without the hold: the limit at 3 mm and the arm off at once. With
+  // the inspection station's record (MFs measured in the scanner's views to about 0.3 mm)
+  // the first fits already place the far ding within a millimetre: the hold is the
+  // safeguard for a record that is not as good (with the earlier noise model's record,
+  // 0.25 px at the scanner, this ding was sprayed several millimetres off in depth). A
+  // 1 mm limit without the hold keeps the arm waiting on the ding instead, and the pace
   // drops. (Each figure from its own report: the replay is deterministic.)
   const std::string at_once = replay_report(
       line_fast_dir() + "/recording",
@@ -314,8 +317,8 @@ TEST_CASE("line-fast: the arm waits at home for refits to place every ding, then
       (dir.path() / "at-once").string());
   INFO(at_once);
   CHECK(json_number(at_once, "defects", "marked") == 3);
-  CHECK(json_max_abs(at_once, "prediction_error_mm").z() > 3.0);
-  CHECK(json_max_abs(at_once, "prediction_error_mm").z() > 2 * held.z());
+  CHECK(json_number(at_once, "false_sprays", "false_sprays") == 0);
+  CHECK(json_max_abs(at_once, "prediction_error_mm").z() < 3.0);
   test::TempDir dir2;
   const std::string waiting = replay_report(
       line_fast_dir() + "/recording",
@@ -459,7 +462,7 @@ TEST_CASE("a record that does not match the panel: inter-calibration rejected (s
   bool in_mfs = false;
   while (std::getline(lines, line)) {
     if (line == "macro_features:") in_mfs = true;
-    else if (line == "defects:") in_mfs = false;
+    else if (line == "defects:" || line == "macro_feature_quality:") in_mfs = false;
     else if (in_mfs) {
       std::array<double, 3> p{};
       char c = 0;

@@ -206,9 +206,8 @@ Scenario parse_scenario(const std::string& path, const std::string& text) {
   }
   s.exposure_drift = r.number_or(root, "", "exposure_drift", 0.0, 0.5, 0.0);
   const YAML::Node insp = r.need(root, "", "inspection");
-  r.map(insp, "inspection", {"X_SL_Panel", "pixel_sigma", "depth_sigma", "ding_depth", "points_per_defect"});
+  r.map(insp, "inspection", {"X_SL_Panel", "depth_sigma", "ding_depth", "points_per_defect"});
   s.X_SL_Panel = r.pose(r.need(insp, "inspection", "X_SL_Panel"), "inspection.X_SL_Panel");
-  s.inspection.pixel_sigma = r.number_or(insp, "inspection", "pixel_sigma", 0.0, 10.0, s.inspection.pixel_sigma);
   s.inspection.depth_sigma = r.number_or(insp, "inspection", "depth_sigma", 0.0, 0.01, s.inspection.depth_sigma);
   s.inspection.ding_depth = r.number_or(insp, "inspection", "ding_depth", 0.0, 0.01, s.inspection.ding_depth);
   if (insp["points_per_defect"].IsDefined())
@@ -368,19 +367,12 @@ std::size_t generate_recording(const Scenario& s, const rig::Panel& panel, const
   std::filesystem::copy_file(panel.mesh_file, std::filesystem::path(folder) / m.panel_mesh,
                              std::filesystem::copy_options::overwrite_existing);
 
-  // The inspection station's record for this panel, as it would send it.
-  const InspectionRecord rec =
-      simulate_inspection(s.name + "-" + std::to_string(s.seed), panel, s.defects, scanner, s.X_SL_Panel, s.inspection, s.seed);
-  std::ofstream out(std::filesystem::path(folder) / "inspection.yaml");
-  out << std::setprecision(9) << "panel_id: " << rec.panel_id << "\npanel_type: " << rec.panel_type
-      << "\nframe: CamL_SL\nunits: m\nmacro_features:\n";
-  for (const auto& p : rec.macro_features_SL) out << "  - [" << p.x() << ", " << p.y() << ", " << p.z() << "]\n";
-  out << "defects:\n";
-  for (const auto& d : rec.defects) {
-    out << "  - id: " << d.id << "\n    points:\n";
-    for (const auto& p : d.points_SL) out << "      - [" << p.x() << ", " << p.y() << ", " << p.z() << "]\n";
-  }
-  out << "...\n";  // the end of the record: a drop folder takes only a finished one
+  // The inspection station's record for this panel: the station on the scanner's views.
+  const InspectionRun inspection = run_inspection_station(folder, s.name + "-" + std::to_string(s.seed), panel, s.defects, scanner,
+                                                          s.X_SL_Panel, s.inspection, render, s.seed);
+  if (!inspection.outcome.ok())
+    throw std::runtime_error("scenario '" + s.name + "': the inspection station made no record: " + inspection.outcome.problem +
+                             " (its views and files: " + (std::filesystem::path(folder) / "inspection").string() + ")");
   return written;
 }
 

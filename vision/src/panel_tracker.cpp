@@ -373,6 +373,10 @@ const PoseEstimate& PanelTracker::process(std::uint64_t seq, Nanos time, const c
   return estimate_;
 }
 
+double PanelTracker::epipolar_row(const Eigen::Vector2d& left, const Eigen::Vector2d& right) const {
+  return rig_.rectify(Camera::kRight, right).y() - rig_.rectify(Camera::kLeft, left).y();
+}
+
 bool PanelTracker::refine(int mf, const Pyramid& image, Eigen::Vector2d& p) const {
   const PanelTypeModel::Mf& m = model_.mfs[static_cast<std::size_t>(mf)];
   if (m.kind == MfKind::kCorner) return refine_corner(image, p, params_.corner_radius);
@@ -500,6 +504,7 @@ void PanelTracker::reinitialise() {
     known_[k] = tracked_[k] = true;
     prev_left_[k] = p;
     prev_right_[k] = r;
+    row_[k] = epipolar_row(p, r);
     velocity_[k].setZero();
     patch_[k] = model_.mfs[k].template_patch;
     extract_patch(L, 0, p, kTemplateRadius, patch_[k]);
@@ -548,6 +553,14 @@ void PanelTracker::track() {
     if (lr.status != LkStatus::kOk) continue;
     Eigen::Vector2d right = lr.point;
     if (!verify_pair(i, left, right)) continue;
+    // The pair's rectified row difference is the calibration's residual at that point of
+    // the panel and changes little from frame to frame; a jump is a match pulled off by
+    // something crossing one view's window (the arm's edge): a fraction of a pixel of
+    // disparity, millimetres of depth that a pose on four or five MFs levers out to the
+    // dings. Such an MF is left out and picked up again by reacquire.
+    const double row = epipolar_row(left, right);
+    if (std::abs(row - row_[k]) > params_.epipolar_jump_px) continue;
+    row_[k] = row;
     auto& o = estimate_.mfs[k];
     o.valid = true;
     o.left = left;
@@ -663,6 +676,7 @@ void PanelTracker::reacquire() {
     if ((rig_.triangulate_observed(left, right) - p).norm() > params_.inlier_m) continue;
     prev_left_[k] = left;
     prev_right_[k] = right;
+    row_[k] = epipolar_row(left, right);
     velocity_[k].setZero();
     tracked_[k] = true;  // used from the next frame on
   }

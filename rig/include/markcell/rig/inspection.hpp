@@ -26,7 +26,6 @@
 namespace markcell::rig {
 
 struct InspectionNoise {
-  double pixel_sigma = 0.25;        // scanner's corner localisation, px (simulate_inspection's model only)
   double depth_sigma = 0.0003;      // scanner's surface points along the normal, m
   double ding_depth = 0.0004;       // a ding's depth at its centre, m
   int points_per_defect = 60;
@@ -37,21 +36,6 @@ struct DefectSpec {
   double x = 0, y = 0;     // centre on the panel surface, panel frame, m
   double radius = 0.012;   // the ding's radius on the surface, m
 };
-
-// The scenarios' record so far (scenario.cpp): the true MFs projected into the scanner's
-// views, perturbed by pixel_sigma and triangulated back (no image looked at), with
-// sample_defect_points' clusters. run_inspection_station below is the station itself;
-// the scenarios move to it once the marking tracker holds its pose error with the
-// record it makes (docs/inspection.md, "On the rig").
-struct InspectionRecord {
-  std::string panel_id;
-  std::string panel_type;
-  std::vector<Eigen::Vector3d> macro_features_SL;  // in the panel type's order, CamL_SL, m
-  std::vector<host::DefectCluster> defects;
-};
-InspectionRecord simulate_inspection(const std::string& panel_id, const rig::Panel& panel,
-                                     const std::vector<DefectSpec>& defects, const vision::StereoCalibration& scanner,
-                                     const Eigen::Isometry3d& X_SL_Panel, const InspectionNoise& noise, std::uint64_t seed);
 
 // The defect detector's clusters in CamL_SL: uniform over each ding's disc on the
 // surface, pressed in by the ding, with the depth noise; seeded.

@@ -124,6 +124,7 @@ struct TrackerParams {
   double corner_agree_px = 1.0;     // the right view's corner within this of LK's match
   double forward_backward_px = 0.5; // forward-backward consistency of frame-to-frame LK
   double epipolar_px = 1.0;         // max distance from the epipolar line
+  double epipolar_jump_px = 0.2;    // max change of a tracked MF's rectified row difference between frames
   double min_ncc = 0.75;            // template match score that counts as found
   int min_macro_features = 4;       // fewer than this: no pose
   double inlier_m = 0.008;          // rigid-motion consistency of an MF, metres (depth noise is ~2 mm)
@@ -137,6 +138,10 @@ struct TrackerParams {
   void Visit(V& v) {
     v(Param{"epipolar_px", Unit::kPixel, 0.05, 20.0, "a left/right pair further than this from its epipolar line is rejected"},
       epipolar_px);
+    v(Param{"epipolar_jump_px", Unit::kPixel, 0.02, 20.0,
+            "a tracked MF whose left/right row difference (rectified) changes more than this between frames is left out "
+            "that frame (the arm across one view's window)"},
+      epipolar_jump_px);
     v(Param{"min_ncc", Unit::kNone, 0.0, 1.0, "template match that counts as found (re-initialisation, reacquisition)"},
       min_ncc);
     v(Param{"lk_window_px", Unit::kOddWindowPx, 5, 2 * kMaxLkRadius + 1, "pyramidal Lucas-Kanade window (odd)"}, lk.radius);
@@ -236,6 +241,8 @@ class PanelTracker {
   std::array<bool, kMaxMacroFeatures> set_up_{};   // found when P was set up (not placed)
   std::array<bool, kMaxMacroFeatures> tracked_{};  // has a left/right position from the previous frame
   std::array<Eigen::Vector2d, kMaxMacroFeatures> prev_left_{}, prev_right_{}, velocity_{};
+  std::array<double, kMaxMacroFeatures> row_{};  // each MF's rectified row difference when last accepted
+  double epipolar_row(const Eigen::Vector2d& left, const Eigen::Vector2d& right) const;
   std::array<Patch, kMaxMacroFeatures> patch_{};   // left template per MF, taken at re-initialisation
   std::array<HoleFitParams, kMaxMacroFeatures> hole_params_{};  // each hole MF's rays, from its radius (start-up)
 };

@@ -193,7 +193,7 @@ TEST_CASE("the inspection station's configuration: every error at its file, line
              Catch::Contains("unknown key"));
 }
 
-TEST_CASE("an inspection record with MFs the station did not find: ~, left out of the fit; fewer than 3 refused") {
+TEST_CASE("an inspection record with MFs the station did not find: ~ is left out of the fit and fewer than 3 are refused") {
   const auto types = marking_types("door");
   std::string mfs = "macro_features:\n";
   for (int i = 0; i < 10; ++i) mfs += i < 7 ? "  - [0." + std::to_string(i) + ", 0.1, 2.0]\n" : "  - ~\n";

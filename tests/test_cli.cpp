@@ -321,7 +321,7 @@ TEST_CASE("select-mfs: the window under Xvfb, driven by mouse and keys, writes t
                                       near(1, 0, 0) + ",ring --mf " + near(2, 0, 0) + " --mf " + near(3, 0, 0));
     INFO(bad_kind.output);
     CHECK(bad_kind.exit_code == 2);
-    CHECK(bad_kind.output.find("--mf '" + near(1, 0, 0) + ",ring': expected X,Y or X,Y,corner or X,Y,hole in pixels") !=
+    CHECK(bad_kind.output.find("--mf '" + near(1, 0, 0) + ",ring': expected X,Y or X,Y,corner or X,Y,hole or X,Y,unseen in pixels") !=
           std::string::npos);
     // The kinds printed: the door's are all corners.
     CHECK(ok.output.find("MF  1 corner at (") != std::string::npos);

@@ -988,3 +988,36 @@ TEST_CASE("a recording's panel mesh that is cut short, or outside its folder, is
   CHECK(outside.output.find("recording.yaml: key 'panel_mesh': '../../door.ply' leaves the recording folder (..)") !=
         std::string::npos);
 }
+
+TEST_CASE("sim table-i: the paper's Table I through both stations, averaged over the panels as the paper's") {
+  // Two panels (a door, a fender), 2 s each: the table's averages against the per-panel
+  // rows, and each row against that panel's own report.json; the figures within the
+  // inspection-station issue's targets (0.3 cm rms, 0.6 cm max per axis; every MF within
+  // 1.5 mm of the truth).
+  test::TempDir dir;
+  const std::string out = (dir.path() / "table-i").string();
+  const auto r = run_command("cd " + source_path("") + " && " + kMarkcell + " sim table-i --panels 2 --seconds 2 -q --out " + out);
+  INFO(r.output);
+  REQUIRE(r.exit_code == 0);
+  CHECK(r.output.find("Table I through the real chain: 2 panels") != std::string::npos);
+  const auto doc = parse_json(read_file(out + "/report.json"));
+  REQUIRE(doc["table_i"]["panels"].get<int>() == 2);
+  REQUIRE(doc["panels"].size() == 2);
+  CHECK(doc["panels"][0]["panel_type"] == "door");
+  CHECK(doc["panels"][1]["panel_type"] == "fender");
+  for (const char* key : {"max_abs_cm", "rms_cm"})
+    for (std::size_t axis = 0; axis < 3; ++axis) {
+      const double a = doc["panels"][0][key][axis].get<double>(), b = doc["panels"][1][key][axis].get<double>();
+      CHECK(doc["table_i"][key][axis].get<double>() == Approx((a + b) / 2).margin(1e-12));
+      CHECK(doc["table_i"][key][axis].get<double>() < (std::string(key) == "rms_cm" ? 0.3 : 0.6));
+      for (int p = 0; p < 2; ++p) {
+        const auto own = parse_json(read_file(out + "/panel-0" + std::to_string(p + 1) + "/report.json"));
+        const char* own_key = std::string(key) == "rms_cm" ? "rms" : "max_abs";
+        CHECK(own["intercalibration_cm"][own_key][axis].get<double>() ==
+              Approx(doc["panels"][p][key][axis].get<double>()).margin(0.0005));
+      }
+    }
+  CHECK(doc["paper"]["max_abs_cm"][2].get<double>() == 2.01);
+  CHECK(doc["inspection"]["macro_features"].get<int>() == 20);
+  CHECK(doc["inspection"]["mf_error_mm"]["max"].get<double>() < 1.5);
+}

@@ -24,14 +24,6 @@
 
 namespace markcell::rig {
 
-namespace {
-// The inspection station's figures from the rig's FOLDER/inspection/mfs.csv (rig/inspection.hpp):
-// MFs measured, their epipolar residuals and their error against the truth. None for a
-// recording without it (another tool's), or one that does not read as the rig writes it.
-struct InspectionFigures {
-  int mfs = 0, measured = 0;
-  double epipolar_median = 0, epipolar_max = 0, error_median_mm = 0, error_max_mm = 0;
-};
 std::optional<InspectionFigures> inspection_figures(const std::string& recording) {
   const std::filesystem::path path = std::filesystem::path(recording) / "inspection" / "mfs.csv";
   std::string text;
@@ -46,9 +38,10 @@ std::optional<InspectionFigures> inspection_figures(const std::string& recording
   InspectionFigures f;
   std::vector<double> epipolar, error;
   while (std::getline(in, line) && f.mfs < 64) {
-    std::vector<std::string> cells;
-    std::istringstream row(line);
-    for (std::string cell; std::getline(row, cell, ',');) cells.push_back(cell);
+    std::vector<std::string> cells(1);  // every field, the empty last one of an MF not found too
+    for (const char c : line)
+      if (c == ',') cells.emplace_back();
+      else cells.back() += c;
     if (cells.size() < 14) return std::nullopt;
     ++f.mfs;
     if (cells[1] != "1") continue;
@@ -69,9 +62,9 @@ std::optional<InspectionFigures> inspection_figures(const std::string& recording
   f.error_median_mm = median(error);
   f.epipolar_max = epipolar.empty() ? 0.0 : *std::max_element(epipolar.begin(), epipolar.end());
   f.error_max_mm = error.empty() ? 0.0 : *std::max_element(error.begin(), error.end());
+  f.errors_mm = error;
   return f;
 }
-}  // namespace
 
 
 // The rig runs the service's cell: its configuration, its cell and their helpers.

@@ -143,18 +143,20 @@ int select_mfs_command(const std::string& image, const std::string& panel, const
     }
     std::vector<vision::MfPick> px;
     for (const auto& p : positions) {
-      // X,Y or X,Y,KIND (corner, hole; without it, whichever is under the point).
+      // X,Y or X,Y,KIND (corner, hole; without it, whichever is under the point; unseen: an
+      // MF this station cannot measure, kept in the order: docs/inspection.md).
       double x = 0, y = 0;
       char comma = 0, rest[16] = {};
       const int n = std::sscanf(p.c_str(), "%lf%c%lf,%15s", &x, &comma, &y, rest);
       const std::string kind = rest;
-      if (n < 3 || comma != ',' || (n == 4 && kind != "corner" && kind != "hole") ||
+      if (n < 3 || comma != ',' || (n == 4 && kind != "corner" && kind != "hole" && kind != "unseen") ||
           (n == 3 && p.find(',', p.find(',') + 1) != std::string::npos)) {
-        std::cerr << "markcell select-mfs: --mf '" << escape_log(p) << "': expected X,Y or X,Y,corner or X,Y,hole in pixels\n";
+        std::cerr << "markcell select-mfs: --mf '" << escape_log(p) << "': expected X,Y or X,Y,corner or X,Y,hole or X,Y,unseen in pixels\n";
         return kExitConfig;
       }
-      px.push_back({{x, y}, kind == "hole" ? vision::MfKindRequest::kHole
+      px.push_back({{x, y}, kind == "hole"     ? vision::MfKindRequest::kHole
                             : kind == "corner" ? vision::MfKindRequest::kCorner
+                            : kind == "unseen" ? vision::MfKindRequest::kUnseen
                                                : vision::MfKindRequest::kAuto});
       clicked.emplace_back(x, y);
     }
@@ -335,7 +337,8 @@ void add_tool_commands(CLI::App& app, Commands& out) {
   select_mfs->add_option("--panel", o->mf_panel, "Panel type name (as in the configuration's panel_types)");
   select_mfs->add_option("--out", o->mf_out, "Panel type file to write")->required();
   select_mfs->add_option("--mf", o->mf_positions,
-                         "Headless: an MF at X,Y pixels, or X,Y,corner / X,Y,hole for that kind (repeat, in order)");
+                         "Headless: an MF at X,Y pixels, or X,Y,corner / X,Y,hole for that kind, X,Y,unseen for one this station "
+                         "cannot measure (repeat, in order)");
   select_mfs->add_option("--snap", o->mf_snap, "Snap each MF to the strongest Shi-Tomasi corner within this many pixels; an MF that would end farther from its click is refused")->check(CLI::Range(0, 20));
   select_mfs->add_option("--search-x", o->mf_search_x, "How far (px) a new panel may sit from the reference along x")->check(CLI::Range(0, 2000));
   select_mfs->add_option("--search-y", o->mf_search_y, "... and along y")->check(CLI::Range(0, 2000));

@@ -137,4 +137,14 @@ std::vector<std::string> write_report(const ReplayReport& report, const host::Ce
 // The marking table (with the paper's figures beside), the timing table and the paths.
 std::string report_table(const ReplayReport& report, const std::vector<std::string>& files);
 
+// The inspection station's figures of a recording the rig made (its
+// recording/inspection/mfs.csv: rig/inspection.hpp): MFs measured, their epipolar
+// residuals and their errors against the truth. None for another tool's recording.
+struct InspectionFigures {
+  int mfs = 0, measured = 0;
+  double epipolar_median = 0, epipolar_max = 0, error_median_mm = 0, error_max_mm = 0;
+  std::vector<double> errors_mm;  // each measured MF's
+};
+std::optional<InspectionFigures> inspection_figures(const std::string& recording);
+
 }  // namespace markcell::rig

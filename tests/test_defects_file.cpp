@@ -114,3 +114,16 @@ TEST_CASE("the defects file is read only as a regular file of bounded size") {
                     Catch::Matchers::StartsWith(dir.path().string() + ": "));
   CHECK_THROWS_AS(read_defects_file((dir.path() / "missing.csv").string(), scanner()), DefectsInvalid);
 }
+
+TEST_CASE("the CSV writer: what it writes reads back as the same clusters") {
+  const auto clusters = parse_defects(kCsv, "d.csv", scanner());
+  const auto again = parse_defects(format_defects_csv(clusters), "again.csv", scanner());
+  REQUIRE(again.size() == clusters.size());
+  for (std::size_t d = 0; d < clusters.size(); ++d) {
+    CHECK(again[d].id == clusters[d].id);
+    REQUIRE(again[d].points_SL.size() == clusters[d].points_SL.size());
+    for (std::size_t i = 0; i < clusters[d].points_SL.size(); ++i)
+      CHECK((again[d].points_SL[i] - clusters[d].points_SL[i]).norm() < 1e-9);
+  }
+  CHECK(format_defects_csv({}) == "defect_id,x_m,y_m,z_m\n");
+}

@@ -47,13 +47,6 @@ Eigen::Isometry3d scanner_reference_pose() {
   return X;
 }
 
-namespace {
-std::string g9(double v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.9g", v);
-  return b;
-}
-}  // namespace
 
 InspectionRun run_inspection_station(const std::string& folder, const std::string& panel_id, const rig::Panel& panel,
                                      const std::vector<DefectSpec>& defects, const vision::StereoCalibration& scanner,
@@ -96,12 +89,7 @@ InspectionRun run_inspection_station(const std::string& folder, const std::strin
   renderer.render(panel, X_CamR_SL * X_SL_Panel, 1.0, seed * 1'000'033ULL + 3, {}, left, right);
   cv::imwrite((dir / "left.png").string(), left);
   cv::imwrite((dir / "right.png").string(), right);
-  {
-    std::ofstream csv(dir / "defects.csv");
-    csv << "defect_id,x_m,y_m,z_m\n";
-    for (const auto& c : sample_defect_points(panel, defects, X_SL_Panel, noise, seed))
-      for (const auto& p : c.points_SL) csv << c.id << "," << g9(p.x()) << "," << g9(p.y()) << "," << g9(p.z()) << "\n";
-  }
+  std::ofstream(dir / "defects.csv") << host::format_defects_csv(sample_defect_points(panel, defects, X_SL_Panel, noise, seed));
 
   // The station, from its files, as `markcell inspect` runs it.
   const host::InspectionStationConfig config = host::load_inspection_station_config((dir / "station.yaml").string());
@@ -121,13 +109,11 @@ InspectionRun run_inspection_station(const std::string& folder, const std::strin
     run.error_mm.push_back(found ? (m->p_CamL - truth).norm() * 1e3 : -1.0);
     char line[400];
     if (found)
-      std::snprintf(line, sizeof line, "%zu,1,%.3f,%.3f,%.3f,%.3f,%.4f,%s,%s,%s,%s,%s,%s,%.4f\n", i, m->left.x(), m->left.y(),
-                    m->right.x(), m->right.y(), m->epipolar_px, g9(m->p_CamL.x()).c_str(), g9(m->p_CamL.y()).c_str(),
-                    g9(m->p_CamL.z()).c_str(), g9(truth.x()).c_str(), g9(truth.y()).c_str(), g9(truth.z()).c_str(),
-                    run.error_mm.back());
+      std::snprintf(line, sizeof line, "%zu,1,%.3f,%.3f,%.3f,%.3f,%.4f,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.4f\n", i, m->left.x(),
+                    m->left.y(), m->right.x(), m->right.y(), m->epipolar_px, m->p_CamL.x(), m->p_CamL.y(), m->p_CamL.z(),
+                    truth.x(), truth.y(), truth.z(), run.error_mm.back());
     else
-      std::snprintf(line, sizeof line, "%zu,0,,,,,,,,,%s,%s,%s,\n", i, g9(truth.x()).c_str(), g9(truth.y()).c_str(),
-                    g9(truth.z()).c_str());
+      std::snprintf(line, sizeof line, "%zu,0,,,,,,,,,%.9g,%.9g,%.9g,\n", i, truth.x(), truth.y(), truth.z());
     mfs << line;
   }
   if (run.outcome.ok()) {

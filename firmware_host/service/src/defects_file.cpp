@@ -2,6 +2,7 @@
 
 #include <charconv>
 #include <cmath>
+#include <cstdio>
 #include <map>
 
 #include "markcell/common/bounded_file.hpp"
@@ -223,6 +224,17 @@ std::vector<DefectCluster> read_defects_file(const std::string& path, const Scan
     throw DefectsInvalid(e.what());
   }
   return parse_defects(text, path, volume, min_points);
+}
+
+std::string format_defects_csv(const std::vector<DefectCluster>& clusters) {
+  std::string out = "defect_id,x_m,y_m,z_m\n";
+  for (const DefectCluster& c : clusters)
+    for (const Eigen::Vector3d& p : c.points_SL) {
+      char line[128];
+      std::snprintf(line, sizeof line, "%d,%.9g,%.9g,%.9g\n", c.id, p.x(), p.y(), p.z());
+      out += line;
+    }
+  return out;
 }
 
 }  // namespace markcell::host

@@ -44,5 +44,8 @@ inline constexpr std::size_t kMaxDefectsFileBytes = 8u << 20;
 std::vector<DefectCluster> read_defects_file(const std::string& path, const ScannerVolume& volume, int min_points = 3);
 std::vector<DefectCluster> parse_defects(std::string_view text, const std::string& path, const ScannerVolume& volume,
                                          int min_points = 3);
+// The same clusters as the CSV form (header, one point a line, 9 significant digits):
+// what a detector writes, and what the rig writes for the station.
+std::string format_defects_csv(const std::vector<DefectCluster>& clusters);
 
 }  // namespace markcell::host

@@ -1063,7 +1063,7 @@ InspectionStationConfig load_inspection_station_config_text(const std::string& t
         const auto model = vision::load_panel_type(panel.file);
         if (model.image_width != scanner.left.width || model.image_height != scanner.left.height)
           r.error(n["file"], TP + ".file",
-                  "its MFs were picked on a " + std::to_string(model.image_width) + "x" + std::to_string(model.image_height) +
+                  std::string("its MFs were picked on a ") + std::to_string(model.image_width) + "x" + std::to_string(model.image_height) +
                       " image; the scanner's cameras are " + std::to_string(scanner.left.width) + "x" +
                       std::to_string(scanner.left.height) + " (select-mfs on a scanner image)");
       } catch (const std::exception&) {

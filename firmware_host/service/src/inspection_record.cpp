@@ -114,9 +114,9 @@ control::PanelJob parse_inspection_record(const std::string& text, const std::st
   // How the station saw each MF: checked for form (the marking station does not use it).
   if (const YAML::Node q = root["macro_feature_quality"]; q.IsDefined()) {
     if (!q.IsSequence() || q.size() != mfs.size())
-      fail(path, q, "macro_feature_quality", "expected a list with one entry per macro-feature (" + std::to_string(mfs.size()) + ")");
+      fail(path, q, "macro_feature_quality", std::string("expected a list with one entry per macro-feature (") + std::to_string(mfs.size()) + ")");
     for (std::size_t i = 0; i < q.size(); ++i) {
-      const std::string F = "macro_feature_quality[" + std::to_string(i) + "]";
+      const std::string F = std::string("macro_feature_quality[") + std::to_string(i) + "]";
       if (q[i].IsNull() != mfs[i].IsNull())
         fail(path, q[i], F, mfs[i].IsNull() ? "must be ~: the macro-feature was not measured" : "missing for a measured macro-feature");
       if (q[i].IsNull()) continue;

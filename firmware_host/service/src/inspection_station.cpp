@@ -117,7 +117,7 @@ std::string number(double v) {
   std::snprintf(b, sizeof b, "%.9g", v);
   return b;
 }
-std::string point(const Eigen::Vector3d& p) { return "[" + number(p.x()) + ", " + number(p.y()) + ", " + number(p.z()) + "]"; }
+std::string point(const Eigen::Vector3d& p) { return std::string("[") + number(p.x()) + ", " + number(p.y()) + ", " + number(p.z()) + "]"; }
 std::string pixel(const Eigen::Vector2d& p) {
   char b[64];
   std::snprintf(b, sizeof b, "[%.3f, %.3f]", p.x(), p.y());
@@ -129,9 +129,17 @@ std::string format_inspection_record(const std::string& panel_id, const std::str
                                      const vision::StereoMeasurement& measurement, const std::vector<DefectCluster>& defects) {
   std::string s;
   s.reserve(4096 + 64 * defects.size() * 64);
-  s += "panel_id: " + panel_id + "\npanel_type: " + panel_type + "\nframe: CamL_SL\nunits: m\n";
+  s += "panel_id: ";
+  s += panel_id;
+  s += "\npanel_type: ";
+  s += panel_type;
+  s += "\nframe: CamL_SL\nunits: m\n";
   s += "# each MF in the panel type's order, measured in the scanner's pair; ~: not found there\nmacro_features:\n";
-  for (const auto& m : measurement.mfs) s += "  - " + (m.found ? point(m.p_CamL) : std::string("~")) + "\n";
+  for (const auto& m : measurement.mfs) {
+    s += "  - ";
+    s += m.found ? point(m.p_CamL) : std::string("~");
+    s += "\n";
+  }
   s += "macro_feature_quality:\n";
   for (const auto& m : measurement.mfs) {
     if (!m.found) {
@@ -146,8 +154,14 @@ std::string format_inspection_record(const std::string& panel_id, const std::str
   s += "defects:";
   s += defects.empty() ? " []\n" : "\n";
   for (const DefectCluster& d : defects) {
-    s += "  - id: " + std::to_string(d.id) + "\n    points:\n";
-    for (const Eigen::Vector3d& p : d.points_SL) s += "      - " + point(p) + "\n";
+    s += "  - id: ";
+    s += std::to_string(d.id);
+    s += "\n    points:\n";
+    for (const Eigen::Vector3d& p : d.points_SL) {
+      s += "      - ";
+      s += point(p);
+      s += "\n";
+    }
   }
   s += "...\n";  // the end of the record: a drop folder takes only a finished one
   return s;

@@ -80,14 +80,14 @@ InspectionOutcome InspectionStation::inspect(const std::string& panel_id, const 
   out.panel_id = panel_id;
   out.panel_type = panel_type;
   if (const std::string why = panel_id_problem(panel_id); !why.empty()) {
-    out.problem = "panel id '" + panel_id + "': " + why;
+    out.problem = std::string("panel id '") + panel_id + "': " + why;
     return out;
   }
   std::size_t index = config_.panel_types.size();
   for (std::size_t i = 0; i < config_.panel_types.size(); ++i)
     if (config_.panel_types[i].name == panel_type) index = i;
   if (index == config_.panel_types.size()) {
-    out.problem = "panel type '" + panel_type + "' is not configured in " + config_.file;
+    out.problem = std::string("panel type '") + panel_type + "' is not configured in " + config_.file;
     return out;
   }
   const int w = impl_->scanner.left.width, h = impl_->scanner.left.height;
@@ -170,14 +170,14 @@ std::string format_inspection_record(const std::string& panel_id, const std::str
 void write_file_atomically(const std::string& path, const std::string& text) {
   const fs::path target(path);
   const fs::path folder = target.has_parent_path() ? target.parent_path() : fs::path(".");
-  const fs::path part = folder / ("." + target.filename().string() + ".part");
+  const fs::path part = folder / (std::string(".") + target.filename().string() + ".part");
   const auto fail = [&](const std::string& what) {
     const int e = errno;
     ::unlink(part.c_str());
     throw std::runtime_error(path + ": " + what + ": " + std::strerror(e));
   };
   const int fd = ::open(part.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0644);
-  if (fd < 0) fail("cannot create " + part.string());
+  if (fd < 0) fail(std::string("cannot create ") + part.string());
   std::size_t done = 0;
   while (done < text.size()) {
     const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
@@ -193,7 +193,7 @@ void write_file_atomically(const std::string& path, const std::string& text) {
     fail("cannot sync");
   }
   ::close(fd);
-  if (::rename(part.c_str(), target.c_str()) != 0) fail("cannot rename " + part.string() + " over it");
+  if (::rename(part.c_str(), target.c_str()) != 0) fail(std::string("cannot rename ") + part.string() + " over it");
   if (const int dir = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dir >= 0) {
     ::fsync(dir);
     ::close(dir);

@@ -147,9 +147,8 @@ void add_inspect_command(CLI::App& app, Commands& out) {
                    }
                    try {
                      // The marking station's own reader first: what it would refuse is never written.
-                     std::vector<PanelTypeConfig> types{config.panel_types};
-                     for (PanelTypeConfig& t : types) t.macro_features = vision::load_panel_type(t.file).count();
-                     (void)parse_inspection_record(outcome.record, record_path, types);
+                     // (The loader has checked each panel type's macro_features against its file.)
+                     (void)parse_inspection_record(outcome.record, record_path, config.panel_types);
                      write_file_atomically(record_path, outcome.record);
                    } catch (const std::exception& e) {
                      std::cerr << "markcell inspect: no record for panel " << panel_id << ": " << e.what() << "\n";
